@@ -1,0 +1,1029 @@
+//! The event-driven hard-sphere engine (seed 001, Sec. 4, Eq. 44–48).
+//!
+//! Every particle has exactly one pending event in the queue: its earliest
+//! pair collision, wall collision, outlet crossing or neighbour-shell expiry
+//! (Eq. 46); the queue yields the global earliest (Eq. 47) and time advances
+//! to it (Eq. 48). Particles are moved lazily: each stores the time of its
+//! last update, and only the particles taking part in an event are moved
+//! and re-predicted. A pair event remembers its partner's event counter;
+//! when the partner has had an event since, the prediction is stale and the
+//! particle is simply re-predicted (Hoomans' "particles that regarded one of
+//! the colliding particles as their collision partner").
+//!
+//! Between flow steps all particles are synchronised, velocity kicks are
+//! applied (gravity, later drag), times are re-based to zero and every
+//! particle is re-predicted.
+
+use glam::DVec3;
+use rand::SeedableRng;
+use rand_xoshiro::Xoshiro256PlusPlus;
+
+use crate::collision::{self, Body, CollisionKind, ContactParams};
+use crate::domain::{AxisBoundary, Domain, Face, OutletMode, mirror_code};
+use crate::geometry;
+use crate::materials::MaterialTable;
+use crate::neighbours::{self, CellGrid, MAX_PARTICLES, NeighbourLists};
+use crate::particles::NewParticle;
+use crate::queue::EventQueue;
+
+/// Tunables of the engine (SI units).
+#[derive(Clone, Debug, PartialEq)]
+pub struct EngineConfig {
+    /// Neighbour-shell thickness δ (m).
+    pub skin: f64,
+    /// TC-model duration t_c (s): a collision within t_c of either partner's
+    /// previous collision is elastic (Luding & McNamara 1998). 0 disables.
+    pub tc: f64,
+    /// Collisions per particle per flow step above which the particle is
+    /// reported as a sign of inelastic collapse.
+    pub max_collisions_per_step: u32,
+    /// Keep a [`CollisionRecord`] of every collision for the caller.
+    pub record_collisions: bool,
+    /// Where re-inserted particles (outlet mode `Reinsert`) enter.
+    pub inlet: Option<InletZone>,
+    /// Seed of the engine's own random stream (insertion positions).
+    pub seed: u64,
+}
+
+impl Default for EngineConfig {
+    fn default() -> Self {
+        EngineConfig {
+            skin: 0.0,
+            tc: 0.0,
+            max_collisions_per_step: u32::MAX,
+            record_collisions: false,
+            inlet: None,
+            seed: 0,
+        }
+    }
+}
+
+/// Slab next to the `lo` face of `axis` where particles are inserted.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct InletZone {
+    pub axis: usize,
+    /// Slab thickness (m).
+    pub height: f64,
+    /// Velocity given to inserted particles (m/s).
+    pub velocity: DVec3,
+}
+
+/// Errors detected when building or running the engine.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum EngineError {
+    #[error("particle {index}: {what}")]
+    BadParticle { index: usize, what: String },
+    #[error("particles {a} and {b} overlap by {overlap:.3e} m")]
+    Overlap { a: usize, b: usize, overlap: f64 },
+    #[error("too many particles: at most {MAX_PARTICLES} are supported")]
+    TooManyParticles,
+    #[error("invalid engine setting: {0}")]
+    Config(String),
+}
+
+/// The partner in a collision.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub enum Partner {
+    Particle(u32),
+    Wall(Face),
+}
+
+/// One processed collision, kept when `record_collisions` is set.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CollisionRecord {
+    /// Absolute time (s).
+    pub time: f64,
+    /// Slot of particle a.
+    pub a: u32,
+    pub b: Partner,
+    /// Impulse on a (N s).
+    pub impulse: DVec3,
+    /// Unit normal from b to a.
+    pub normal: DVec3,
+    pub kind: CollisionKind,
+    /// Kinetic energy lost (J), ≥ 0 up to round-off.
+    pub dissipated: f64,
+}
+
+/// A particle that exceeded the per-step collision limit.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct CollapseReport {
+    /// Absolute time of the flow step's end (s).
+    pub time: f64,
+    pub id: u64,
+    pub position: DVec3,
+    pub collisions: u32,
+}
+
+/// Running totals since construction.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct Counters {
+    pub pair_collisions: u64,
+    pub wall_collisions: u64,
+    pub shell_rebuilds: u64,
+    pub stale_events: u64,
+    pub removed: u64,
+    pub inserted: u64,
+    /// Σ r_ab · J over pair collisions (J m = kg m²/s), the collision virial.
+    pub virial: f64,
+    /// Kinetic energy dissipated in pair collisions (J).
+    pub dissipated_pair: f64,
+    /// Kinetic energy dissipated in wall collisions (J).
+    pub dissipated_wall: f64,
+    /// Momentum given to each wall face (N s), in face order.
+    pub wall_impulse: [DVec3; 6],
+}
+
+/// State of one particle at the engine's current time.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ParticleView {
+    pub id: u64,
+    pub pos: DVec3,
+    pub vel: DVec3,
+    pub omega: DVec3,
+    pub radius: f64,
+    pub mass: f64,
+    pub material: u16,
+}
+
+/// Position, velocity, radius and the time they refer to: one cache line.
+#[derive(Clone, Copy, Debug, Default)]
+#[repr(C, align(64))]
+struct Kinematics {
+    pos: DVec3,
+    time: f64,
+    vel: DVec3,
+    radius: f64,
+}
+
+impl Kinematics {
+    #[inline]
+    fn position_at(&self, t: f64) -> DVec3 {
+        self.pos + self.vel * (t - self.time)
+    }
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum EventKind {
+    Pair,
+    Wall,
+    Outlet,
+    ShellExit,
+}
+
+/// A particle's pending event. For pairs, `partner` is a packed list entry
+/// (index and image code) and `partner_count` the partner's event counter
+/// when the prediction was made.
+#[derive(Clone, Copy, Debug)]
+struct Scheduled {
+    kind: EventKind,
+    face: Face,
+    partner: u32,
+    partner_count: u32,
+}
+
+const SHELL_EXIT: Scheduled = Scheduled {
+    kind: EventKind::ShellExit,
+    face: 0,
+    partner: 0,
+    partner_count: 0,
+};
+
+/// Attempts to find a free spot when inserting a particle.
+const INSERT_ATTEMPTS: usize = 200;
+
+/// The event-driven engine, generic over the event queue.
+pub struct Engine<Q: EventQueue> {
+    domain: Domain,
+    materials: MaterialTable,
+    config: EngineConfig,
+    /// Largest radius the neighbour grid was sized for (m).
+    r_max: f64,
+    /// Whether any contact can change angular velocities.
+    rough: bool,
+    image_shift: [DVec3; 27],
+
+    kin: Vec<Kinematics>,
+    omega: Vec<DVec3>,
+    inv_mass: Vec<f64>,
+    material: Vec<u16>,
+    id: Vec<u64>,
+    active: Vec<bool>,
+    counter: Vec<u32>,
+    scheduled: Vec<Scheduled>,
+    shell_centre: Vec<DVec3>,
+    /// Bit `f` set when the shell reaches face `f` (wall or outlet).
+    face_mask: Vec<u8>,
+    last_collision: Vec<f64>,
+    step_collisions: Vec<u32>,
+    free_slots: Vec<u32>,
+    next_id: u64,
+
+    lists: NeighbourLists,
+    cells: CellGrid,
+    queue: Q,
+    rng: Xoshiro256PlusPlus,
+
+    /// Current time relative to `time_origin` (s).
+    now: f64,
+    time_origin: f64,
+    needs_prediction: bool,
+    /// Particles that left through a reinserting outlet but found no room yet.
+    pending_reinsert: Vec<NewParticle>,
+    /// Reused buffer for cell-grid searches.
+    scratch: Vec<usize>,
+
+    pub counters: Counters,
+    pub records: Vec<CollisionRecord>,
+    pub collapse_reports: Vec<CollapseReport>,
+}
+
+impl<Q: EventQueue> Engine<Q> {
+    /// Builds the engine at time 0. Fails on particles outside the domain,
+    /// overlapping pairs (beyond 1e-10 of a diameter), unknown materials or
+    /// non-planar data in planar mode.
+    pub fn new(
+        domain: Domain,
+        materials: MaterialTable,
+        config: EngineConfig,
+        particles: &[NewParticle],
+    ) -> Result<Self, EngineError> {
+        if !(config.skin > 0.0 && config.skin.is_finite()) {
+            return Err(EngineError::Config(format!("skin must be > 0 m, got {}", config.skin)));
+        }
+        if particles.len() > MAX_PARTICLES {
+            return Err(EngineError::TooManyParticles);
+        }
+        let mut r_max = particles.iter().map(|p| p.radius).fold(0.0, f64::max);
+        if let Some(inlet) = config.inlet {
+            // Reinserted particles keep their size, so r_max already covers them.
+            if !(inlet.height > 0.0) {
+                return Err(EngineError::Config("inlet height must be > 0".into()));
+            }
+        }
+        if r_max == 0.0 {
+            r_max = config.skin;
+        }
+        Self::with_capacity_for_radius(domain, materials, config, r_max, particles)
+    }
+
+    /// As [`Engine::new`], with the neighbour grid sized for particles up to
+    /// radius `r_max` (needed when an inlet will add larger particles later).
+    pub fn with_capacity_for_radius(
+        domain: Domain,
+        materials: MaterialTable,
+        mut config: EngineConfig,
+        r_max: f64,
+        particles: &[NewParticle],
+    ) -> Result<Self, EngineError> {
+        let size = domain.size();
+        // Minimum image requires every possible list partner to lie within
+        // half a box length on periodic axes: 2 (R_max + δ) ≤ L/2.
+        for axis in 0..3 {
+            if domain.axes[axis] == AxisBoundary::Periodic {
+                let limit = 0.25 * size[axis] - r_max;
+                if limit <= 0.0 {
+                    return Err(EngineError::Config(format!(
+                        "periodic axis {axis} is {} m long; it must exceed 4 × the largest radius ({} m)",
+                        size[axis], r_max
+                    )));
+                }
+                config.skin = config.skin.min(limit);
+            }
+        }
+        let reach = 2.0 * (r_max + config.skin);
+        let periodic = domain.axes.map(|a| a == AxisBoundary::Periodic);
+        let mut image_shift = [DVec3::ZERO; 27];
+        for (code, s) in image_shift.iter_mut().enumerate() {
+            *s = domain.image_shift(code as u32);
+        }
+        let rough = !materials.all_smooth();
+        let n = particles.len();
+        let mut engine = Engine {
+            cells: CellGrid::new(domain.lo, domain.hi, reach, periodic, n),
+            domain,
+            materials,
+            r_max,
+            rough,
+            image_shift,
+            kin: Vec::with_capacity(n),
+            omega: Vec::with_capacity(n),
+            inv_mass: Vec::with_capacity(n),
+            material: Vec::with_capacity(n),
+            id: Vec::with_capacity(n),
+            active: Vec::with_capacity(n),
+            counter: Vec::with_capacity(n),
+            scheduled: Vec::with_capacity(n),
+            shell_centre: Vec::with_capacity(n),
+            face_mask: Vec::with_capacity(n),
+            last_collision: Vec::with_capacity(n),
+            step_collisions: Vec::with_capacity(n),
+            free_slots: Vec::new(),
+            next_id: 0,
+            lists: NeighbourLists::new(n, 24),
+            queue: Q::with_capacity(n),
+            rng: Xoshiro256PlusPlus::seed_from_u64(config.seed),
+            config,
+            now: 0.0,
+            time_origin: 0.0,
+            needs_prediction: true,
+            pending_reinsert: Vec::new(),
+            scratch: Vec::new(),
+            counters: Counters::default(),
+            records: Vec::new(),
+            collapse_reports: Vec::new(),
+        };
+        for (index, p) in particles.iter().enumerate() {
+            engine.check_particle(index, p)?;
+            let slot = engine.allocate_slot(p);
+            engine.cells.place(slot, p.pos);
+            engine.shell_centre[slot] = p.pos;
+        }
+        // Build all lists from the cell grid, then check for overlaps.
+        for i in 0..engine.kin.len() {
+            engine.rebuild_list(i);
+        }
+        for i in 0..engine.kin.len() {
+            for &e in engine.lists.list(i) {
+                let (j, code) = neighbours::unpack(e);
+                let j = j as usize;
+                if j < i {
+                    continue;
+                }
+                let d = engine.kin[i].pos - engine.kin[j].pos - engine.image_shift[code as usize];
+                let sigma = engine.kin[i].radius + engine.kin[j].radius;
+                let overlap = sigma - d.length();
+                if overlap > 1e-10 * sigma {
+                    return Err(EngineError::Overlap { a: i, b: j, overlap });
+                }
+            }
+        }
+        Ok(engine)
+    }
+
+    fn check_particle(&self, index: usize, p: &NewParticle) -> Result<(), EngineError> {
+        let bad = |what: String| Err(EngineError::BadParticle { index, what });
+        if !(p.radius > 0.0 && p.radius.is_finite()) {
+            return bad(format!("radius must be > 0 m, got {}", p.radius));
+        }
+        if p.radius > self.r_max {
+            return bad(format!("radius {} m exceeds the grid's {} m", p.radius, self.r_max));
+        }
+        if !(p.pos.is_finite() && p.vel.is_finite() && p.omega.is_finite()) {
+            return bad("position and velocities must be finite".into());
+        }
+        if p.material as usize >= self.materials.len() || !(self.materials.density[p.material as usize] > 0.0) {
+            return bad(format!("material {} has no density", p.material));
+        }
+        for axis in 0..3 {
+            let (lo, hi) = (self.domain.lo[axis], self.domain.hi[axis]);
+            let inside = match self.domain.axes[axis] {
+                AxisBoundary::Walls => p.pos[axis] - p.radius >= lo - 1e-12 * p.radius && p.pos[axis] + p.radius <= hi + 1e-12 * p.radius,
+                AxisBoundary::Periodic => p.pos[axis] >= lo && p.pos[axis] < hi,
+                AxisBoundary::Frozen => p.vel[axis] == 0.0 && p.omega.x == 0.0 && p.omega.y == 0.0,
+            };
+            if !inside {
+                return bad(format!("outside the domain or not planar on axis {axis}: position {}, velocity {}", p.pos, p.vel));
+            }
+        }
+        Ok(())
+    }
+
+    /// Stores a particle in a free or new slot at the current time, without
+    /// cells, lists or events.
+    fn allocate_slot(&mut self, p: &NewParticle) -> usize {
+        let kin = Kinematics { pos: p.pos, time: self.now, vel: p.vel, radius: p.radius };
+        let inv_mass = 1.0 / self.materials.sphere_mass(p.material, p.radius);
+        let id = self.next_id;
+        self.next_id += 1;
+        self.counters.inserted += 1;
+        if let Some(slot) = self.free_slots.pop() {
+            let s = slot as usize;
+            self.kin[s] = kin;
+            self.omega[s] = p.omega;
+            self.inv_mass[s] = inv_mass;
+            self.material[s] = p.material;
+            self.id[s] = id;
+            self.active[s] = true;
+            self.counter[s] = self.counter[s].wrapping_add(1);
+            self.scheduled[s] = SHELL_EXIT;
+            self.shell_centre[s] = p.pos;
+            self.face_mask[s] = 0;
+            self.last_collision[s] = f64::NEG_INFINITY;
+            self.step_collisions[s] = 0;
+            return s;
+        }
+        self.kin.push(kin);
+        self.omega.push(p.omega);
+        self.inv_mass.push(inv_mass);
+        self.material.push(p.material);
+        self.id.push(id);
+        self.active.push(true);
+        self.counter.push(0);
+        self.scheduled.push(SHELL_EXIT);
+        self.shell_centre.push(p.pos);
+        self.face_mask.push(0);
+        self.last_collision.push(f64::NEG_INFINITY);
+        self.step_collisions.push(0);
+        let slots = self.kin.len();
+        self.lists.resize(slots);
+        self.cells.resize(slots);
+        slots - 1
+    }
+
+    // ----- queries -------------------------------------------------------
+
+    /// Absolute simulation time (s).
+    pub fn time(&self) -> f64 {
+        self.time_origin + self.now
+    }
+
+    pub fn domain(&self) -> &Domain {
+        &self.domain
+    }
+
+    pub fn materials(&self) -> &MaterialTable {
+        &self.materials
+    }
+
+    /// Neighbour-shell thickness in use (m), after clamping for small
+    /// periodic boxes.
+    pub fn skin(&self) -> f64 {
+        self.config.skin
+    }
+
+    /// Number of slots (active or free).
+    pub fn slots(&self) -> usize {
+        self.kin.len()
+    }
+
+    /// Number of particles in the simulation.
+    pub fn len(&self) -> usize {
+        self.kin.len() - self.free_slots.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Whether rotation is being tracked (some contact is rough).
+    pub fn is_rough(&self) -> bool {
+        self.rough
+    }
+
+    /// The particle in `slot` at the current time (position wrapped into
+    /// the box), or `None` for a free slot.
+    pub fn particle(&self, slot: usize) -> Option<ParticleView> {
+        if !self.active[slot] {
+            return None;
+        }
+        let k = &self.kin[slot];
+        Some(ParticleView {
+            id: self.id[slot],
+            pos: self.domain.wrap(k.position_at(self.now)),
+            vel: k.vel,
+            omega: self.omega[slot],
+            radius: k.radius,
+            mass: 1.0 / self.inv_mass[slot],
+            material: self.material[slot],
+        })
+    }
+
+    /// All particles at the current time, in slot order.
+    pub fn particles(&self) -> impl Iterator<Item = ParticleView> + '_ {
+        (0..self.kin.len()).filter_map(|i| self.particle(i))
+    }
+
+    /// Bytes of engine state per particle (all per-particle arrays,
+    /// neighbour lists at their current stride, and the cell links).
+    pub fn bytes_per_particle(&self) -> usize {
+        std::mem::size_of::<Kinematics>()
+            + std::mem::size_of::<DVec3>() * 2
+            + std::mem::size_of::<f64>() * 2
+            + std::mem::size_of::<u16>()
+            + std::mem::size_of::<u64>()
+            + std::mem::size_of::<bool>()
+            + std::mem::size_of::<u32>() * 2
+            + std::mem::size_of::<Scheduled>()
+            + std::mem::size_of::<u8>()
+            + std::mem::size_of::<u32>() * (self.lists.stride() + 1)
+            + std::mem::size_of::<u32>() * 3
+            + 16 // event queue entry and position index
+    }
+
+    // ----- the event loop ------------------------------------------------
+
+    /// Processes every event before `self.time() + dt`, then sets the clock
+    /// to that time. Particles are not synchronised.
+    pub fn advance(&mut self, dt: f64) {
+        let end = self.now + dt;
+        self.ensure_predicted();
+        while let Some((t, i)) = self.queue.peek_min() {
+            if t >= end {
+                break;
+            }
+            self.now = t;
+            self.process(i as usize);
+        }
+        self.now = end;
+    }
+
+    /// Processes queue entries until one collision happens before
+    /// `self.time() + horizon`; returns it. Internal events (list expiry,
+    /// stale predictions) are processed silently. Recording must be enabled.
+    pub fn next_collision(&mut self, horizon: f64) -> Option<CollisionRecord> {
+        let end = self.now + horizon;
+        self.ensure_predicted();
+        let before = self.records.len();
+        while let Some((t, i)) = self.queue.peek_min() {
+            if t >= end {
+                break;
+            }
+            self.now = t;
+            self.process(i as usize);
+            if self.records.len() > before {
+                return self.records.pop();
+            }
+        }
+        None
+    }
+
+    fn ensure_predicted(&mut self) {
+        if self.needs_prediction {
+            self.predict_all();
+        }
+    }
+
+    /// Moves every particle to the current time.
+    pub fn synchronise(&mut self) {
+        let now = self.now;
+        for (k, &active) in self.kin.iter_mut().zip(&self.active) {
+            if active {
+                k.pos = k.position_at(now);
+                k.time = now;
+            }
+        }
+    }
+
+    /// Ends a flow step: synchronises all particles, checks the collapse
+    /// guard and shifts the time origin to now. All events must then be
+    /// re-predicted, which happens lazily before the next event.
+    pub fn end_flow_step(&mut self) {
+        self.synchronise();
+        let time = self.time();
+        for i in 0..self.kin.len() {
+            if self.active[i] && self.step_collisions[i] > self.config.max_collisions_per_step {
+                self.collapse_reports.push(CollapseReport {
+                    time,
+                    id: self.id[i],
+                    position: self.domain.wrap(self.kin[i].pos),
+                    collisions: self.step_collisions[i],
+                });
+            }
+            self.step_collisions[i] = 0;
+        }
+        let shift = self.now;
+        self.time_origin += shift;
+        self.now = 0.0;
+        for k in &mut self.kin {
+            k.time = 0.0;
+        }
+        for t in &mut self.last_collision {
+            *t -= shift;
+        }
+        self.needs_prediction = true;
+        self.retry_pending_reinsertions();
+    }
+
+    /// Adds `dv` to the velocity of every particle (a force over a flow
+    /// step). Call between [`Engine::end_flow_step`] and the next advance.
+    pub fn kick_all(&mut self, dv: DVec3) {
+        for (k, &active) in self.kin.iter_mut().zip(&self.active) {
+            if active {
+                k.vel += dv;
+            }
+        }
+        self.needs_prediction = true;
+    }
+
+    /// Adds a per-particle velocity change `dv(view)`.
+    pub fn kick_each(&mut self, mut dv: impl FnMut(&ParticleView) -> DVec3) {
+        for i in 0..self.kin.len() {
+            if let Some(view) = self.particle(i) {
+                self.kin[i].vel += dv(&view);
+            }
+        }
+        self.needs_prediction = true;
+    }
+
+    /// Re-predicts every particle from scratch.
+    fn predict_all(&mut self) {
+        self.queue.clear();
+        for i in 0..self.kin.len() {
+            if self.active[i] {
+                self.sync(i);
+                self.predict(i);
+            }
+        }
+        self.needs_prediction = false;
+    }
+
+    #[inline]
+    fn sync(&mut self, i: usize) {
+        let k = &mut self.kin[i];
+        k.pos = k.position_at(self.now);
+        k.time = self.now;
+    }
+
+    /// Finds particle i's earliest event (Eq. 46) and queues it. Particle i
+    /// must be synchronised to `now`.
+    fn predict(&mut self, i: usize) {
+        let ki = self.kin[i];
+        let mut best = geometry::shell_exit_time(ki.pos - self.shell_centre[i], ki.vel, self.config.skin);
+        let mut event = SHELL_EXIT;
+        let mut mask = self.face_mask[i];
+        while mask != 0 {
+            let face = mask.trailing_zeros() as u8;
+            mask &= mask - 1;
+            let axis = (face / 2) as usize;
+            let (x, v) = (ki.pos[axis], ki.vel[axis]);
+            let t = if face % 2 == 0 {
+                geometry::lower_wall_time(x, v, ki.radius, self.domain.lo[axis])
+            } else if self.domain.has_wall(face) {
+                geometry::upper_wall_time(x, v, ki.radius, self.domain.hi[axis])
+            } else {
+                geometry::upper_wall_time(x, v, 0.0, self.domain.hi[axis])
+            };
+            if t < best {
+                best = t;
+                let kind = if face % 2 == 1 && !self.domain.has_wall(face) { EventKind::Outlet } else { EventKind::Wall };
+                event = Scheduled { kind, face, partner: 0, partner_count: 0 };
+            }
+        }
+        let now = self.now;
+        for &entry in self.lists.list(i) {
+            let (j, code) = neighbours::unpack(entry);
+            let kj = &self.kin[j as usize];
+            let pj = kj.position_at(now) + self.image_shift[code as usize];
+            let t = geometry::pair_contact_time_before(ki.pos - pj, ki.vel - kj.vel, ki.radius + kj.radius, best);
+            if t < best {
+                best = t;
+                event = Scheduled {
+                    kind: EventKind::Pair,
+                    face: 0,
+                    partner: entry,
+                    partner_count: self.counter[j as usize],
+                };
+            }
+        }
+        self.scheduled[i] = event;
+        self.queue.set(i as u32, now + best);
+    }
+
+    fn process(&mut self, i: usize) {
+        let event = self.scheduled[i];
+        match event.kind {
+            EventKind::Pair => {
+                let (j, code) = neighbours::unpack(event.partner);
+                let j = j as usize;
+                if self.counter[j] != event.partner_count {
+                    self.counters.stale_events += 1;
+                    self.sync(i);
+                    self.predict(i);
+                } else {
+                    self.collide_pair(i, j, code);
+                }
+            }
+            EventKind::Wall => self.collide_wall(i, event.face),
+            EventKind::Outlet => self.leave_through_outlet(i),
+            EventKind::ShellExit => {
+                self.sync(i);
+                self.counters.shell_rebuilds += 1;
+                self.rebuild_list(i);
+                self.predict(i);
+            }
+        }
+    }
+
+    /// Normal restitution for a contact, after the TC model.
+    #[inline]
+    fn restitution(&self, params: &ContactParams, i: usize, j: Option<usize>) -> ContactParams {
+        let tc = self.config.tc;
+        if tc > 0.0 {
+            let recent = |k: usize| self.now - self.last_collision[k] < tc;
+            if recent(i) || j.is_some_and(recent) {
+                return ContactParams { e_n: 1.0, ..*params };
+            }
+        }
+        *params
+    }
+
+    fn note_collision(&mut self, i: usize) {
+        self.counter[i] = self.counter[i].wrapping_add(1);
+        self.last_collision[i] = self.now;
+        self.step_collisions[i] += 1;
+    }
+
+    fn body(&self, i: usize) -> Body {
+        Body {
+            vel: self.kin[i].vel,
+            omega: self.omega[i],
+            radius: self.kin[i].radius,
+            inv_mass: self.inv_mass[i],
+        }
+    }
+
+    fn collide_pair(&mut self, i: usize, j: usize, code: u32) {
+        self.sync(i);
+        self.sync(j);
+        let r = self.kin[i].pos - self.kin[j].pos - self.image_shift[code as usize];
+        let dist = r.length();
+        let n = r / dist;
+        let params = self.restitution(self.materials.pair(self.material[i], self.material[j]), i, Some(j));
+        let (a, b) = (self.body(i), self.body(j));
+        let (impulse, kind, dissipated) = if self.rough {
+            let (a2, b2, imp) = collision::collide(n, &a, &b, &params);
+            let loss = collision::kinetic_energy(&a) + collision::kinetic_energy(&b)
+                - collision::kinetic_energy(&a2)
+                - collision::kinetic_energy(&b2);
+            self.kin[i].vel = a2.vel;
+            self.kin[j].vel = b2.vel;
+            self.omega[i] = a2.omega;
+            self.omega[j] = b2.omega;
+            (imp.j, imp.kind, loss)
+        } else {
+            // Smooth fast path: J = J_n n with J_n from Eq. 20.
+            let m_ab = collision::reduced_mass(a.inv_mass, b.inv_mass);
+            let v_n = (a.vel - b.vel).dot(n);
+            let j_n = collision::normal_impulse(v_n, m_ab, params.e_n);
+            let jv = j_n * n;
+            self.kin[i].vel += jv * a.inv_mass;
+            self.kin[j].vel -= jv * b.inv_mass;
+            let loss = 0.5 * (1.0 - params.e_n * params.e_n) * m_ab * v_n * v_n;
+            (jv, CollisionKind::Smooth, loss)
+        };
+        self.counters.pair_collisions += 1;
+        self.counters.virial += dist * impulse.dot(n);
+        self.counters.dissipated_pair += dissipated;
+        self.note_collision(i);
+        self.note_collision(j);
+        if self.config.record_collisions {
+            self.records.push(CollisionRecord {
+                time: self.time(),
+                a: i as u32,
+                b: Partner::Particle(j as u32),
+                impulse,
+                normal: n,
+                kind,
+                dissipated,
+            });
+        }
+        self.predict(i);
+        self.predict(j);
+    }
+
+    fn collide_wall(&mut self, i: usize, face: Face) {
+        self.sync(i);
+        let axis = (face / 2) as usize;
+        let mut n = DVec3::ZERO;
+        n[axis] = if face % 2 == 0 { 1.0 } else { -1.0 };
+        let params = self.restitution(self.materials.wall(self.material[i]), i, None);
+        let a = self.body(i);
+        let (a2, _, imp) = collision::collide(n, &a, &Body::WALL, &params);
+        let loss = collision::kinetic_energy(&a) - collision::kinetic_energy(&a2);
+        self.kin[i].vel = a2.vel;
+        self.omega[i] = a2.omega;
+        self.counters.wall_collisions += 1;
+        self.counters.dissipated_wall += loss;
+        self.counters.wall_impulse[face as usize] -= imp.j;
+        self.note_collision(i);
+        if self.config.record_collisions {
+            self.records.push(CollisionRecord {
+                time: self.time(),
+                a: i as u32,
+                b: Partner::Wall(face),
+                impulse: imp.j,
+                normal: n,
+                kind: imp.kind,
+                dissipated: loss,
+            });
+        }
+        self.predict(i);
+    }
+
+    /// Rebuilds particle i's shell around its current position: wraps it
+    /// into the box, drops it from its old neighbours' lists and links it
+    /// with every particle whose shell overlaps the new one.
+    fn rebuild_list(&mut self, i: usize) {
+        let pos = self.kin[i].pos;
+        let wrapped = self.domain.wrap(pos);
+        if wrapped != pos {
+            self.kin[i].pos = wrapped;
+            // Others' predictions hold image codes relative to the old
+            // coordinates: mark them stale.
+            self.counter[i] = self.counter[i].wrapping_add(1);
+        }
+        let centre = wrapped;
+        for k in 0..self.lists.list(i).len() {
+            let (j, _) = neighbours::unpack(self.lists.list(i)[k]);
+            self.lists.remove_index(j as usize, i as u32);
+        }
+        self.lists.clear(i);
+        self.shell_centre[i] = centre;
+        self.cells.place(i, centre);
+        let ri = self.kin[i].radius + self.config.skin;
+        let mut found = std::mem::take(&mut self.scratch);
+        found.clear();
+        self.cells.for_each_near(centre, |j| {
+            if j != i {
+                found.push(j);
+            }
+        });
+        for &j in &found {
+            let d = self.shell_centre[j] - centre;
+            let code = self.domain.image_code(d);
+            let reach = ri + self.kin[j].radius + self.config.skin;
+            if (d + self.image_shift[code as usize]).length_squared() < reach * reach {
+                // Entry in i's list: j appears shifted by `code` relative to i.
+                self.lists.push(i, neighbours::pack(j as u32, code));
+                self.lists.push(j, neighbours::pack(i as u32, mirror_code(code)));
+            }
+        }
+        let mut mask = 0u8;
+        for axis in 0..3 {
+            if self.domain.axes[axis] != AxisBoundary::Walls {
+                continue;
+            }
+            if centre[axis] - ri <= self.domain.lo[axis] {
+                mask |= 1 << (2 * axis);
+            }
+            let upper = (2 * axis + 1) as Face;
+            let reach_hi = if self.domain.has_wall(upper) { ri } else { self.config.skin };
+            if centre[axis] + reach_hi >= self.domain.hi[axis] {
+                mask |= 1 << upper;
+            }
+        }
+        self.face_mask[i] = mask;
+        self.scratch = found;
+    }
+
+    /// Takes particle i out of the simulation and returns it.
+    fn remove(&mut self, i: usize) -> NewParticle {
+        self.sync(i);
+        self.queue.remove(i as u32);
+        for k in 0..self.lists.list(i).len() {
+            let (j, _) = neighbours::unpack(self.lists.list(i)[k]);
+            self.lists.remove_index(j as usize, i as u32);
+        }
+        self.lists.clear(i);
+        self.cells.remove(i);
+        self.active[i] = false;
+        self.counter[i] = self.counter[i].wrapping_add(1);
+        self.free_slots.push(i as u32);
+        self.counters.removed += 1;
+        let k = self.kin[i];
+        NewParticle {
+            pos: k.pos,
+            vel: k.vel,
+            omega: self.omega[i],
+            radius: k.radius,
+            material: self.material[i],
+        }
+    }
+
+    fn leave_through_outlet(&mut self, i: usize) {
+        let p = self.remove(i);
+        if matches!(self.domain.outlet, Some(o) if o.mode == OutletMode::Reinsert) {
+            let inlet = self.config.inlet.expect("reinserting outlet requires an inlet zone");
+            let p = NewParticle { vel: inlet.velocity, omega: DVec3::ZERO, ..p };
+            if !self.insert_in_inlet(p) {
+                self.pending_reinsert.push(p);
+            }
+        }
+    }
+
+    fn retry_pending_reinsertions(&mut self) {
+        let pending = std::mem::take(&mut self.pending_reinsert);
+        for p in pending {
+            if !self.insert_in_inlet(p) {
+                self.pending_reinsert.push(p);
+            }
+        }
+    }
+
+    /// Particles waiting for room in the inlet zone.
+    pub fn pending_reinsertions(&self) -> usize {
+        self.pending_reinsert.len()
+    }
+
+    /// Tries to place `p` (its position is ignored) at a random free spot
+    /// in the inlet zone at the current time. Returns false when no spot
+    /// was found in a bounded number of attempts.
+    pub fn insert_in_inlet(&mut self, p: NewParticle) -> bool {
+        use rand::RngExt;
+        let Some(inlet) = self.config.inlet else { return false };
+        let (lo, hi) = (self.domain.lo, self.domain.hi);
+        for _ in 0..INSERT_ATTEMPTS {
+            let mut pos = DVec3::ZERO;
+            for axis in 0..3 {
+                let (mut a, mut b) = (lo[axis], hi[axis]);
+                if axis == inlet.axis {
+                    b = a + inlet.height;
+                }
+                if self.domain.axes[axis] == AxisBoundary::Frozen {
+                    pos[axis] = 0.5 * (a + b);
+                    continue;
+                }
+                if self.domain.axes[axis] == AxisBoundary::Walls {
+                    a += p.radius;
+                    if axis != inlet.axis {
+                        b -= p.radius;
+                    }
+                }
+                if b <= a {
+                    return false;
+                }
+                pos[axis] = self.rng.random_range(a..b);
+            }
+            if self.try_insert(NewParticle { pos, ..p }) {
+                return true;
+            }
+        }
+        false
+    }
+
+    /// Inserts `p` at its position at the current time if it overlaps no
+    /// particle and no wall and fits the neighbour grid; returns whether it
+    /// was inserted.
+    pub fn try_insert(&mut self, p: NewParticle) -> bool {
+        if self.check_particle(usize::MAX, &p).is_err() {
+            return false;
+        }
+        let mut overlaps = false;
+        let now = self.now;
+        self.cells.for_each_near(p.pos, |j| {
+            let kj = &self.kin[j];
+            let d = p.pos - kj.position_at(now);
+            let d = d + self.image_shift[self.domain.image_code(d) as usize];
+            let sigma = p.radius + kj.radius;
+            if d.length_squared() < sigma * sigma {
+                overlaps = true;
+            }
+        });
+        if overlaps {
+            return false;
+        }
+        let slot = self.allocate_slot(&p);
+        self.rebuild_list(slot);
+        if !self.needs_prediction {
+            self.predict(slot);
+        }
+        true
+    }
+
+    /// Kinetic energy split into translational and rotational parts (J).
+    pub fn kinetic_energy(&self) -> (f64, f64) {
+        let mut trans = 0.0;
+        let mut rot = 0.0;
+        for i in 0..self.kin.len() {
+            if self.active[i] {
+                let m = 1.0 / self.inv_mass[i];
+                trans += 0.5 * m * self.kin[i].vel.length_squared();
+                let r = self.kin[i].radius;
+                rot += 0.5 * 0.4 * m * r * r * self.omega[i].length_squared();
+            }
+        }
+        (trans, rot)
+    }
+
+    /// Total linear momentum (kg m/s).
+    pub fn momentum(&self) -> DVec3 {
+        let mut p = DVec3::ZERO;
+        for i in 0..self.kin.len() {
+            if self.active[i] {
+                p += self.kin[i].vel / self.inv_mass[i];
+            }
+        }
+        p
+    }
+
+    /// Smallest gap between any two particles in a neighbour list, relative
+    /// to their diameter sum; negative means overlap. For tests and checks.
+    pub fn min_relative_gap(&self) -> f64 {
+        let mut min = f64::INFINITY;
+        for i in 0..self.kin.len() {
+            if !self.active[i] {
+                continue;
+            }
+            let pi = self.kin[i].position_at(self.now);
+            for &e in self.lists.list(i) {
+                let (j, code) = neighbours::unpack(e);
+                let kj = &self.kin[j as usize];
+                let d = pi - kj.position_at(self.now) - self.image_shift[code as usize];
+                let sigma = self.kin[i].radius + kj.radius;
+                min = min.min(d.length() / sigma - 1.0);
+            }
+        }
+        min
+    }
+}

@@ -1,0 +1,144 @@
+//! Event-time prediction for straight-line flight (seed 001, Eq. 45).
+//!
+//! Pure functions: every time returned is a delay from "now", never negative,
+//! `f64::INFINITY` when the event cannot happen.
+
+/// Delay until two spheres touch, Eq. 45, in a form free of cancellation.
+///
+/// `r = r_a - r_b` (m), `v = v_a - v_b` (m/s), `sigma = R_a + R_b` (m).
+/// With `b = r·v`, `c = r² - σ²`, `a = v²`, Eq. 45 reads
+/// `t = (-b - sqrt(b² - a c)) / a`; multiplying by the conjugate gives
+/// `t = c / (-b + sqrt(b² - a c))`, which has no cancellation when `b < 0`.
+/// Receding pairs (`b ≥ 0`) never collide; an approaching pair that already
+/// touches or overlaps (`c ≤ 0`) collides at once (`t = 0`).
+#[inline]
+pub fn pair_contact_time(r: glam::DVec3, v: glam::DVec3, sigma: f64) -> f64 {
+    pair_contact_time_before(r, v, sigma, f64::INFINITY)
+}
+
+/// As [`pair_contact_time`], but returns `INFINITY` whenever the contact
+/// time is not smaller than `horizon`. Since `sqrt(b² - a c) ≤ |b|`, the
+/// contact time is at least `c / (-2b)`; pairs beyond the horizon are
+/// rejected with that bound before any square root is taken.
+#[inline]
+pub fn pair_contact_time_before(r: glam::DVec3, v: glam::DVec3, sigma: f64, horizon: f64) -> f64 {
+    let b = r.dot(v);
+    if b >= 0.0 {
+        return f64::INFINITY;
+    }
+    let c = r.length_squared() - sigma * sigma;
+    if c <= 0.0 {
+        return 0.0;
+    }
+    if c >= -2.0 * b * horizon {
+        return f64::INFINITY;
+    }
+    let a = v.length_squared();
+    let disc = b * b - a * c;
+    if disc <= 0.0 {
+        return f64::INFINITY;
+    }
+    let t = c / (disc.sqrt() - b);
+    if t < horizon { t } else { f64::INFINITY }
+}
+
+/// Delay until a sphere of radius `radius` at coordinate `x` moving with
+/// velocity component `v` touches a plane wall at `lo` (the sphere is on the
+/// `+` side) — the infinite-mass partner of Eq. 45.
+#[inline]
+pub fn lower_wall_time(x: f64, v: f64, radius: f64, lo: f64) -> f64 {
+    if v >= 0.0 {
+        return f64::INFINITY;
+    }
+    let gap = x - radius - lo;
+    if gap <= 0.0 { 0.0 } else { gap / -v }
+}
+
+/// Delay until a sphere touches a plane wall at `hi` (sphere on the `-` side).
+#[inline]
+pub fn upper_wall_time(x: f64, v: f64, radius: f64, hi: f64) -> f64 {
+    lower_wall_time(-x, -v, radius, -hi)
+}
+
+/// Delay until a point at offset `d` from a sphere's centre, moving with
+/// velocity `v`, reaches the sphere's surface at distance `delta`.
+/// Used for neighbour-shell expiry. A point already outside exits at once.
+#[inline]
+pub fn shell_exit_time(d: glam::DVec3, v: glam::DVec3, delta: f64) -> f64 {
+    let a = v.length_squared();
+    if a == 0.0 {
+        return f64::INFINITY;
+    }
+    let c = d.length_squared() - delta * delta;
+    if c >= 0.0 {
+        return 0.0;
+    }
+    let b = d.dot(v);
+    let root = (b * b - a * c).sqrt();
+    // Positive root of a t² + 2 b t + c = 0 with c < 0, written without
+    // cancellation for either sign of b.
+    if b > 0.0 { -c / (b + root) } else { (root - b) / a }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::DVec3;
+
+    #[test]
+    fn head_on_pair_time_is_gap_over_speed() {
+        // Spheres of radius 0.5 at distance 3 approaching at 2: gap 2, t = 1.
+        let t = pair_contact_time(DVec3::new(3.0, 0.0, 0.0), DVec3::new(-2.0, 0.0, 0.0), 1.0);
+        assert!((t - 1.0).abs() < 1e-15, "t = {t}");
+    }
+
+    #[test]
+    fn grazing_miss_and_receding_pairs_never_collide() {
+        // Impact parameter 1.0 + 1e-9 > sigma: miss.
+        let r = DVec3::new(10.0, 1.0 + 1e-9, 0.0);
+        assert_eq!(pair_contact_time(r, DVec3::new(-1.0, 0.0, 0.0), 1.0), f64::INFINITY);
+        assert_eq!(pair_contact_time(r, DVec3::new(1.0, 0.0, 0.0), 1.0), f64::INFINITY);
+    }
+
+    #[test]
+    fn overlapping_approaching_pair_collides_at_once() {
+        let t = pair_contact_time(DVec3::new(0.9, 0.0, 0.0), DVec3::new(-1.0, 0.0, 0.0), 1.0);
+        assert_eq!(t, 0.0);
+    }
+
+    #[test]
+    fn near_contact_time_keeps_relative_precision() {
+        // Gap 1e-12 at unit speed: the naive Eq. 45 loses all digits to
+        // cancellation; the conjugate form is accurate to ~1e-4 relative
+        // (c = r² - σ² itself carries an absolute error of ~1e-16).
+        let t = pair_contact_time(DVec3::new(1.0 + 1e-12, 0.0, 0.0), DVec3::new(-1.0, 0.0, 0.0), 1.0);
+        assert!((t - 1e-12).abs() < 1e-16, "t = {t}");
+    }
+
+    #[test]
+    fn horizon_rejects_late_contacts_only() {
+        let r = DVec3::new(3.0, 0.0, 0.0);
+        let v = DVec3::new(-2.0, 0.0, 0.0);
+        assert_eq!(pair_contact_time_before(r, v, 1.0, 0.999), f64::INFINITY);
+        assert!((pair_contact_time_before(r, v, 1.0, 1.001) - 1.0).abs() < 1e-15);
+    }
+
+    #[test]
+    fn wall_times() {
+        assert!((lower_wall_time(1.0, -0.5, 0.25, 0.0) - 1.5).abs() < 1e-15);
+        assert!((upper_wall_time(1.0, 0.5, 0.25, 2.0) - 1.5).abs() < 1e-15);
+        assert_eq!(lower_wall_time(1.0, 0.5, 0.25, 0.0), f64::INFINITY);
+        assert_eq!(lower_wall_time(0.2, -0.5, 0.25, 0.0), 0.0);
+    }
+
+    #[test]
+    fn shell_exit_from_centre_and_off_centre() {
+        let t = shell_exit_time(DVec3::ZERO, DVec3::new(0.0, 2.0, 0.0), 0.5);
+        assert!((t - 0.25).abs() < 1e-15);
+        // Moving outward from 0.4 and inward from -0.4 along x, delta 0.5.
+        let out = shell_exit_time(DVec3::new(0.4, 0.0, 0.0), DVec3::X, 0.5);
+        let inw = shell_exit_time(DVec3::new(-0.4, 0.0, 0.0), DVec3::X, 0.5);
+        assert!((out - 0.1).abs() < 1e-15 && (inw - 0.9).abs() < 1e-15);
+        assert_eq!(shell_exit_time(DVec3::ZERO, DVec3::ZERO, 0.5), f64::INFINITY);
+    }
+}

@@ -1,0 +1,16 @@
+//! edpm: event-driven hard-sphere discrete particle model.
+//!
+//! Data flow: [`scenario`] → [`particles`], [`materials`] and [`domain`] →
+//! [`engine`] (event times from [`geometry`], impulses from [`collision`],
+//! ordering by [`queue`], neighbour shells from [`neighbours`]) → output.
+//! Units are SI throughout.
+
+pub mod collision;
+pub mod domain;
+pub mod engine;
+pub mod geometry;
+pub mod materials;
+pub mod neighbours;
+pub mod particles;
+pub mod queue;
+pub mod scenario;

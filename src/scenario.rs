@@ -1,0 +1,1 @@
+//! Scenario files (TOML): schema, validation and `--set` overrides.
