@@ -5,12 +5,16 @@
 //! ordering by [`queue`], neighbour shells from [`neighbours`]) → output.
 //! Units are SI throughout.
 
+pub mod bench;
 pub mod collision;
 pub mod domain;
 pub mod engine;
 pub mod geometry;
+pub mod initial;
 pub mod materials;
 pub mod neighbours;
 pub mod particles;
 pub mod queue;
+pub mod random;
 pub mod scenario;
+pub mod run;

@@ -1,3 +1,113 @@
-fn main() {
-    println!("Hello, world!");
+//! The `edpm` command line.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+use edpm::bench::{self, BenchOptions};
+use edpm::queue::QueueKind;
+
+#[derive(Parser)]
+#[command(name = "edpm", version, about = "Event-driven hard-sphere discrete particle model")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Run a scenario and write a summary and time series.
+    Run {
+        /// Scenario file (TOML).
+        scenario: PathBuf,
+        /// Output directory (default: out/<scenario name>).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// End time in seconds, overriding time.t_end.
+        #[arg(long)]
+        t_end: Option<f64>,
+        /// Override any scenario key, e.g. --set collisions.default.e_n=0.8
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        overrides: Vec<String>,
+        /// No progress bar.
+        #[arg(long)]
+        quiet: bool,
+    },
+    /// Elastic smooth spheres in a periodic cube; prints one JSON line.
+    Bench {
+        /// Particle count (rounded to 4 k³ for the FCC start).
+        #[arg(long, default_value_t = 10976)]
+        n: usize,
+        /// Packing fraction.
+        #[arg(long, default_value_t = 0.3)]
+        phi: f64,
+        /// Collisions per particle to equilibrate.
+        #[arg(long, default_value_t = 20.0)]
+        equilibrate: f64,
+        /// Collisions per particle to measure.
+        #[arg(long, default_value_t = 50.0)]
+        measure: f64,
+        /// Flow step (in mean free times) at which every particle is
+        /// synchronised and re-predicted, as in a coupled run.
+        #[arg(long)]
+        flow_step: Option<f64>,
+        /// Neighbour-shell thickness in diameters.
+        #[arg(long, default_value_t = 0.2)]
+        skin: f64,
+        #[arg(long, value_enum, default_value = "indexed-heap")]
+        queue: QueueArg,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+    },
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum QueueArg {
+    IndexedHeap,
+    Calendar,
+    Reference,
+}
+
+impl From<QueueArg> for QueueKind {
+    fn from(q: QueueArg) -> Self {
+        match q {
+            QueueArg::IndexedHeap => QueueKind::IndexedHeap,
+            QueueArg::Calendar => QueueKind::Calendar,
+            QueueArg::Reference => QueueKind::Reference,
+        }
+    }
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Run { scenario, out, t_end, overrides, quiet } => {
+            edpm::run::run_cli(&scenario, out.as_deref(), t_end, &overrides, !quiet)
+        }
+        Command::Bench { n, phi, equilibrate, measure, flow_step, skin, queue, seed } => {
+            let checks = [
+                (n >= 4, "--n must be at least 4"),
+                (phi > 0.0 && phi < 0.55, "--phi must be in (0, 0.55): the fluid branch"),
+                (equilibrate >= 0.0 && measure > 0.0, "--equilibrate must be >= 0 and --measure > 0"),
+                (flow_step.is_none_or(|f| f > 0.0), "--flow-step must be > 0"),
+                (skin > 0.0 && skin <= 2.0, "--skin must be in (0, 2]"),
+            ];
+            match checks.iter().find(|(ok, _)| !ok) {
+                Some((_, msg)) => Err(anyhow::anyhow!("{msg}")),
+                None => {
+                    let opts = BenchOptions { n, phi, equilibrate, measure, flow_step, skin, queue: queue.into(), seed };
+                    let r = bench::run(&opts);
+                    println!("{}", serde_json::to_string(&r).expect("bench result serialises"));
+                    Ok(())
+                }
+            }
+        }
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("edpm: error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
 }

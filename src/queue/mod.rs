@@ -24,3 +24,24 @@ pub trait EventQueue {
     /// Removes every event.
     fn clear(&mut self);
 }
+
+pub mod calendar;
+pub mod indexed_heap;
+pub mod reference;
+
+pub use calendar::CalendarQueue;
+pub use indexed_heap::IndexedHeap;
+pub use reference::ReferenceQueue;
+
+/// Which [`EventQueue`] implementation the engine uses.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum QueueKind {
+    /// [`ReferenceQueue`]: the `priority-queue` crate; slow, for testing.
+    Reference,
+    /// [`IndexedHeap`]: indexed 4-ary heap, O(log n) per operation.
+    #[default]
+    IndexedHeap,
+    /// [`CalendarQueue`]: bucket queue, O(1) average per operation.
+    Calendar,
+}

@@ -1,1 +1,0 @@
-//! Scenario files (TOML): schema, validation and `--set` overrides.

@@ -1,0 +1,894 @@
+//! Raw schema → validated [`Scenario`].
+
+use std::collections::HashMap;
+use std::f64::consts::PI;
+use std::path::PathBuf;
+
+use glam::DVec3;
+
+use super::diameter::{LOGNORMAL_MIN_MASS, lognormal_mass};
+use super::raw::{self, AxisName, RawAxis, RawDiameter, RawInt, RawScenario};
+use super::{
+    AxisBoundary, Boundaries, CollisionSettings, ContactTable, Diameter, Domain, EngineSettings,
+    InitialState, Inlet, Material, Outlet, OutletMode, OutputSettings, Placement, Population,
+    QueueChoice, Region, Scenario, ScenarioError, Splitting, TimeSettings, locate, overrides,
+};
+use crate::collision::ContactParams;
+
+/// Solids-fraction caps (see docs/scenario.md).
+/// 3D lattice: simple cubic packing with spacing d.
+pub(crate) const CAP_LATTICE_3D: f64 = PI / 6.0;
+/// 3D random sequential insertion (jamming limit ≈ 0.38).
+pub(crate) const CAP_RANDOM_3D: f64 = 0.35;
+/// Planar lattice, as area fraction: square packing.
+pub(crate) const CAP_LATTICE_2D: f64 = PI / 4.0;
+/// Planar random sequential insertion, as area fraction (jamming ≈ 0.547).
+pub(crate) const CAP_RANDOM_2D: f64 = 0.5;
+/// Hard limit on the number of particles per population.
+pub(crate) const MAX_PARTICLES: u64 = 50_000_000;
+
+const DEFAULT_SKIN: f64 = 0.1;
+const DEFAULT_MAX_COLLISIONS_PER_STEP: u64 = 1000;
+
+/// What errors need to know about their origin.
+pub(crate) struct Ctx<'a> {
+    pub file: &'a str,
+    pub text: &'a str,
+    /// Display paths set by `--set`.
+    pub overridden: &'a [String],
+}
+
+type R<T> = Result<T, ScenarioError>;
+
+fn under(path: &str, prefix: &str) -> bool {
+    path == prefix
+        || path
+            .strip_prefix(prefix)
+            .is_some_and(|rest| rest.starts_with('.') || rest.starts_with('['))
+}
+
+impl Ctx<'_> {
+    /// A field error; the location is looked up in the text unless the field
+    /// was set by `--set`.
+    pub fn err(&self, path: impl Into<String>, message: impl Into<String>) -> ScenarioError {
+        self.err_impl(path.into(), message.into(), false)
+    }
+
+    fn err_impl(&self, path: String, message: String, at_key: bool) -> ScenarioError {
+        let mut message = message;
+        let location = if self.overridden.iter().any(|o| under(&path, o)) {
+            message.push_str(" (value from --set)");
+            None
+        } else {
+            locate::locate(self.text, &path, at_key)
+        };
+        ScenarioError::Field {
+            file: self.file.to_string(),
+            path,
+            message,
+            location,
+        }
+    }
+
+    pub fn serde_error(&self, e: serde_path_to_error::Error<toml::de::Error>) -> ScenarioError {
+        let mut path = e.path().to_string();
+        if path == "." {
+            path.clear();
+        }
+        let msg = e.inner().message().trim().to_string();
+        let join = |p: &str, k: &str| {
+            if p.is_empty() {
+                k.to_string()
+            } else {
+                format!("{p}.{k}")
+            }
+        };
+        let quoted = |m: &str| m.split('`').nth(1).map(str::to_string);
+        let unknown_key = msg.starts_with("unknown field ");
+        let (path, message) = if let Some(rest) = msg.strip_prefix("missing field ") {
+            match quoted(rest) {
+                Some(k) => (join(&path, &k), "required key is missing".to_string()),
+                None => (path, msg),
+            }
+        } else if let Some(rest) = msg.strip_prefix("unknown field ") {
+            let message = format!("unknown key {rest}");
+            match quoted(rest) {
+                Some(k) if !path.ends_with(&k) => (join(&path, &k), message),
+                _ => (path, message),
+            }
+        } else if let Some(rest) = msg.strip_prefix("unknown variant ") {
+            (path, format!("invalid value {rest}"))
+        } else {
+            (path, msg)
+        };
+        let path = if path.is_empty() {
+            "(top level)".to_string()
+        } else {
+            path
+        };
+        self.err_impl(path, message, unknown_key)
+    }
+
+    fn positive(&self, path: &str, v: f64) -> R<f64> {
+        if v.is_finite() && v > 0.0 {
+            Ok(v)
+        } else {
+            Err(self.err(path, format!("must be > 0 and finite, got {v:?}")))
+        }
+    }
+
+    fn non_negative(&self, path: &str, v: f64) -> R<f64> {
+        if v.is_finite() && v >= 0.0 {
+            Ok(v)
+        } else {
+            Err(self.err(path, format!("must be >= 0 and finite, got {v:?}")))
+        }
+    }
+
+    fn closed(&self, path: &str, v: f64, lo: f64, hi: f64) -> R<f64> {
+        if v >= lo && v <= hi {
+            Ok(v)
+        } else {
+            Err(self.err(path, format!("must be in [{lo:?}, {hi:?}], got {v:?}")))
+        }
+    }
+
+    fn vec3(&self, path: &str, a: [f64; 3]) -> R<DVec3> {
+        for (i, x) in a.iter().enumerate() {
+            if !x.is_finite() {
+                return Err(self.err(format!("{path}[{i}]"), format!("must be finite, got {x:?}")));
+            }
+        }
+        Ok(DVec3::from_array(a))
+    }
+
+    fn uint(&self, path: &str, v: &RawInt) -> R<u64> {
+        match v {
+            toml::Value::Integer(n) if *n >= 0 => Ok(*n as u64),
+            other => Err(self.err(path, format!("must be a non-negative integer, got {other}"))),
+        }
+    }
+}
+
+const AXES: [&str; 3] = ["x", "y", "z"];
+
+pub(crate) fn validate(ctx: &Ctx, raw: RawScenario) -> R<Scenario> {
+    let seed = ctx.uint("seed", &raw.seed)?;
+
+    // ---- materials
+    if raw.materials.is_empty() {
+        return Err(ctx.err("materials", "at least one [[materials]] entry is required"));
+    }
+    if raw.materials.len() > u16::MAX as usize {
+        return Err(ctx.err(
+            "materials",
+            format!(
+                "at most {} materials, got {}",
+                u16::MAX,
+                raw.materials.len()
+            ),
+        ));
+    }
+    let mut materials = Vec::with_capacity(raw.materials.len());
+    let mut material_index: HashMap<String, u16> = HashMap::new();
+    for (i, m) in raw.materials.iter().enumerate() {
+        let path = format!("materials[{i}]");
+        if m.name.trim().is_empty() {
+            return Err(ctx.err(format!("{path}.name"), "must not be empty"));
+        }
+        if let Some(&j) = material_index.get(&m.name) {
+            return Err(ctx.err(
+                format!("{path}.name"),
+                format!("duplicate material name '{}' (also materials[{j}])", m.name),
+            ));
+        }
+        let density = match m.density {
+            Some(rho) => Some(ctx.positive(&format!("{path}.density"), rho)?),
+            None => None,
+        };
+        material_index.insert(m.name.clone(), i as u16);
+        materials.push(Material {
+            name: m.name.clone(),
+            density,
+        });
+    }
+    let material_names = || {
+        materials
+            .iter()
+            .map(|m| format!("'{}'", m.name))
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    let find_material = |path: &str, name: &str| -> R<u16> {
+        material_index.get(name).copied().ok_or_else(|| {
+            ctx.err(
+                path,
+                format!("unknown material '{name}'; defined: {}", material_names()),
+            )
+        })
+    };
+
+    // ---- domain
+    let lo = ctx.vec3("domain.lo", raw.domain.lo)?;
+    let hi = ctx.vec3("domain.hi", raw.domain.hi)?;
+    for a in 0..3 {
+        if !(hi[a] - lo[a]).is_finite() {
+            return Err(ctx.err(
+                format!("domain.hi[{a}]"),
+                format!("the domain extent along {} must be finite", AXES[a]),
+            ));
+        }
+        if hi[a] <= lo[a] {
+            return Err(ctx.err(
+                format!("domain.hi[{a}]"),
+                format!(
+                    "must be greater than domain.lo[{a}] = {:?} ({} axis), got {:?}",
+                    lo[a], AXES[a], hi[a]
+                ),
+            ));
+        }
+    }
+    let planar = raw.domain.planar;
+    let gravity = match raw.domain.gravity {
+        Some(g) => ctx.vec3("domain.gravity", g)?,
+        None => DVec3::ZERO,
+    };
+    if planar && gravity.z != 0.0 {
+        return Err(ctx.err(
+            "domain.gravity[2]",
+            format!("must be 0 in planar mode, got {:?}", gravity.z),
+        ));
+    }
+    let domain = Domain {
+        lo,
+        hi,
+        planar,
+        gravity,
+    };
+    let extent = domain.extent();
+
+    // ---- populations
+    let mut populations = Vec::with_capacity(raw.particles.len());
+    let mut population_index: HashMap<String, usize> = HashMap::new();
+    for (i, p) in raw.particles.iter().enumerate() {
+        let path = format!("particles[{i}]");
+        if p.name.trim().is_empty() {
+            return Err(ctx.err(format!("{path}.name"), "must not be empty"));
+        }
+        if let Some(&j) = population_index.get(&p.name) {
+            return Err(ctx.err(
+                format!("{path}.name"),
+                format!(
+                    "duplicate population name '{}' (also particles[{j}])",
+                    p.name
+                ),
+            ));
+        }
+        population_index.insert(p.name.clone(), i);
+        let material = find_material(&format!("{path}.material"), &p.material)?;
+        if materials[material as usize].density.is_none() {
+            return Err(ctx.err(
+                format!("{path}.material"),
+                format!(
+                    "material '{}' has no density, so it can only be a wall material; add density to it",
+                    p.material
+                ),
+            ));
+        }
+        let diameter = validate_diameter(ctx, &format!("{path}.diameter"), &p.diameter)?;
+        let d_max = diameter.max();
+        let placement = p.placement.unwrap_or(Placement::Random);
+        let velocity = match p.velocity {
+            Some(v) => ctx.vec3(&format!("{path}.velocity"), v)?,
+            None => DVec3::ZERO,
+        };
+        if planar && velocity.z != 0.0 {
+            return Err(ctx.err(
+                format!("{path}.velocity[2]"),
+                format!("must be 0 in planar mode, got {:?}", velocity.z),
+            ));
+        }
+        let temperature =
+            ctx.non_negative(&format!("{path}.temperature"), p.temperature.unwrap_or(0.0))?;
+
+        // region
+        let region = match &p.region {
+            None => Region { lo, hi },
+            Some(r) => {
+                let rp = format!("{path}.region");
+                let rlo = ctx.vec3(&format!("{rp}.lo"), r.lo)?;
+                let rhi = ctx.vec3(&format!("{rp}.hi"), r.hi)?;
+                for a in 0..3 {
+                    if rlo[a] < lo[a] || rlo[a] > hi[a] {
+                        return Err(ctx.err(
+                            format!("{rp}.lo[{a}]"),
+                            format!(
+                                "must lie inside the domain [{:?}, {:?}] ({} axis), got {:?}",
+                                lo[a], hi[a], AXES[a], rlo[a]
+                            ),
+                        ));
+                    }
+                    if rhi[a] > hi[a] || rhi[a] <= rlo[a] {
+                        return Err(ctx.err(
+                            format!("{rp}.hi[{a}]"),
+                            format!(
+                                "must be in ({:?}, {:?}] (above region.lo, inside the domain; {} axis), got {:?}",
+                                rlo[a], hi[a], AXES[a], rhi[a]
+                            ),
+                        ));
+                    }
+                }
+                Region { lo: rlo, hi: rhi }
+            }
+        };
+        let rext = region.extent();
+        let n_axes = if planar { 2 } else { 3 };
+        for a in 0..n_axes {
+            if rext[a] <= d_max {
+                let what = if p.region.is_some() {
+                    "region"
+                } else {
+                    "domain"
+                };
+                return Err(ctx.err(
+                    if p.region.is_some() {
+                        format!("{path}.region")
+                    } else {
+                        format!("{path}.diameter")
+                    },
+                    format!(
+                        "the {what} extent along {} ({:?}) must exceed the largest diameter {:?}",
+                        AXES[a], rext[a], d_max
+                    ),
+                ));
+            }
+        }
+
+        // amount: count or solids fraction
+        let region_volume = if planar {
+            rext.x * rext.y * extent.z
+        } else {
+            rext.x * rext.y * rext.z
+        };
+        // Fraction that counts against the cap: volume fraction in 3D,
+        // equivalent area fraction in planar mode.
+        let to_capped = |phi: f64| {
+            if planar {
+                phi * extent.z * 1.5 * diameter.moment(2) / diameter.moment(3)
+            } else {
+                phi
+            }
+        };
+        let cap = match (planar, placement) {
+            (false, Placement::Lattice) => CAP_LATTICE_3D,
+            (false, Placement::Random) => CAP_RANDOM_3D,
+            (true, Placement::Lattice) => CAP_LATTICE_2D,
+            (true, Placement::Random) => CAP_RANDOM_2D,
+        };
+        let cap_text = |capped: f64| {
+            if planar {
+                format!(
+                    "the equivalent area fraction {capped:.4} exceeds the cap {cap:.4} for {} placement in planar mode",
+                    placement_name(placement)
+                )
+            } else {
+                format!(
+                    "the solids fraction {capped:.4} exceeds the cap {cap:.4} for {} placement",
+                    placement_name(placement)
+                )
+            }
+        };
+        let (count, solids_fraction) = match (&p.count, p.solids_fraction) {
+            (Some(_), Some(_)) => {
+                return Err(ctx.err(
+                    format!("{path}.solids_fraction"),
+                    "give either count or solids_fraction, not both",
+                ));
+            }
+            (None, None) => {
+                return Err(ctx.err(
+                    format!("{path}.count"),
+                    "required key is missing (give count or solids_fraction)",
+                ));
+            }
+            (Some(c), None) => {
+                let cpath = format!("{path}.count");
+                let n = ctx.uint(&cpath, c)?;
+                if n > MAX_PARTICLES {
+                    return Err(
+                        ctx.err(&cpath, format!("must be at most {MAX_PARTICLES}, got {n}"))
+                    );
+                }
+                let capped = to_capped(n as f64 * diameter.mean_volume() / region_volume);
+                if capped >= cap {
+                    return Err(ctx.err(
+                        &cpath,
+                        format!("{n} particles do not fit: {}", cap_text(capped)),
+                    ));
+                }
+                (n as usize, None)
+            }
+            (None, Some(phi)) => {
+                let fpath = format!("{path}.solids_fraction");
+                let capped = to_capped(phi);
+                if !(phi.is_finite() && phi > 0.0) {
+                    return Err(ctx.err(&fpath, format!("must be > 0 and finite, got {phi:?}")));
+                }
+                if capped >= cap {
+                    return Err(ctx.err(&fpath, cap_text(capped)));
+                }
+                let n = (phi * region_volume / diameter.mean_volume()).round();
+                if n.is_nan() || n > MAX_PARTICLES as f64 {
+                    return Err(ctx.err(
+                        &fpath,
+                        format!("gives {n:e} particles; at most {MAX_PARTICLES} are allowed"),
+                    ));
+                }
+                (n as usize, Some(phi))
+            }
+        };
+        populations.push(Population {
+            name: p.name.clone(),
+            material,
+            count,
+            solids_fraction,
+            diameter,
+            placement,
+            region,
+            velocity,
+            temperature,
+        });
+    }
+    let d_max = populations
+        .iter()
+        .map(|p| p.diameter.max())
+        .fold(0.0, f64::max);
+
+    // ---- initial
+    let checkpoint = match raw.initial.and_then(|i| i.checkpoint) {
+        Some(c) if c.trim().is_empty() => {
+            return Err(ctx.err("initial.checkpoint", "must not be empty"));
+        }
+        Some(c) => Some(PathBuf::from(c)),
+        None => None,
+    };
+    if populations.is_empty() && checkpoint.is_none() {
+        return Err(ctx.err(
+            "particles",
+            "at least one [[particles]] population is required unless initial.checkpoint is given",
+        ));
+    }
+
+    // ---- domain vs particle size
+    if planar && extent.z < d_max {
+        return Err(ctx.err(
+            "domain.hi[2]",
+            format!(
+                "planar bed depth hi.z - lo.z must be >= the largest diameter {d_max:?}, got {:?}",
+                extent.z
+            ),
+        ));
+    }
+
+    // ---- boundaries
+    let rb = raw.boundaries.unwrap_or_default();
+    let raw_axes = [rb.x, rb.y, rb.z];
+    let mut axes = [AxisBoundary::Walls; 3];
+    for a in 0..3 {
+        let path = format!("boundaries.{}", AXES[a]);
+        axes[a] = match raw_axes[a] {
+            _ if a == 2 && planar => {
+                if raw_axes[2].is_some() {
+                    return Err(ctx.err(
+                        path,
+                        "must be absent in planar mode (the z extent is the bed depth)",
+                    ));
+                }
+                AxisBoundary::Frozen
+            }
+            Some(RawAxis::Periodic) => {
+                if extent[a] < 3.0 * d_max {
+                    return Err(ctx.err(
+                        path,
+                        format!(
+                            "a periodic axis needs a domain extent >= 3 x the largest diameter ({:?}), got {:?}",
+                            3.0 * d_max,
+                            extent[a]
+                        ),
+                    ));
+                }
+                AxisBoundary::Periodic
+            }
+            Some(RawAxis::Walls) | None => AxisBoundary::Walls,
+        };
+    }
+    let any_walls = axes.contains(&AxisBoundary::Walls);
+    let wall_material = match &rb.wall_material {
+        Some(name) => Some(find_material("boundaries.wall_material", name)?),
+        None if any_walls => {
+            let a = axes
+                .iter()
+                .position(|x| *x == AxisBoundary::Walls)
+                .unwrap_or(0);
+            return Err(ctx.err(
+                "boundaries.wall_material",
+                format!(
+                    "required key is missing: the {} axis has walls (boundaries.{} defaults to \"walls\")",
+                    AXES[a], AXES[a]
+                ),
+            ));
+        }
+        None => None,
+    };
+    let outlet = match &rb.outlet {
+        None => None,
+        Some(o) => {
+            let axis = match o.axis {
+                AxisName::X => 0,
+                AxisName::Y => 1,
+                AxisName::Z => 2,
+            };
+            match axes[axis] {
+                AxisBoundary::Walls => {}
+                AxisBoundary::Periodic => {
+                    return Err(ctx.err(
+                        "boundaries.outlet.axis",
+                        format!("the outlet axis must not be periodic, but boundaries.{} = \"periodic\"", AXES[axis]),
+                    ));
+                }
+                AxisBoundary::Frozen => {
+                    return Err(ctx.err(
+                        "boundaries.outlet.axis",
+                        "the outlet cannot be on the z axis in planar mode",
+                    ));
+                }
+            }
+            Some(Outlet { axis, mode: o.mode })
+        }
+    };
+    let inlet = match (&rb.inlet, outlet) {
+        (None, Some(o)) if o.mode == OutletMode::Reinsert => {
+            return Err(ctx.err(
+                "boundaries.outlet.mode",
+                "\"reinsert\" requires [boundaries.inlet] (where particles re-enter)",
+            ));
+        }
+        (None, _) => None,
+        (Some(_), None) => {
+            return Err(ctx.err(
+                "boundaries.inlet",
+                "requires [boundaries.outlet] (the inlet feeds the lo face of the outlet axis)",
+            ));
+        }
+        (Some(inl), Some(o)) => {
+            let ip = "boundaries.inlet";
+            let solids_flux = match (o.mode, inl.solids_flux) {
+                (OutletMode::Remove, Some(f)) => {
+                    Some(ctx.positive(&format!("{ip}.solids_flux"), f)?)
+                }
+                (OutletMode::Remove, None) => {
+                    return Err(ctx.err(
+                        format!("{ip}.solids_flux"),
+                        "required key is missing (boundaries.outlet.mode = \"remove\")",
+                    ));
+                }
+                (OutletMode::Reinsert, Some(_)) => {
+                    return Err(ctx.err(
+                        format!("{ip}.solids_flux"),
+                        "not allowed with boundaries.outlet.mode = \"reinsert\" (the feed is the outflow)",
+                    ));
+                }
+                (OutletMode::Reinsert, None) => None,
+            };
+            let population = match (o.mode, &inl.population) {
+                (OutletMode::Remove, Some(name)) => {
+                    Some(population_index.get(name).copied().ok_or_else(|| {
+                        ctx.err(
+                            format!("{ip}.population"),
+                            format!(
+                                "no [[particles]] population named '{name}'; defined: {}",
+                                populations
+                                    .iter()
+                                    .map(|p| format!("'{}'", p.name))
+                                    .collect::<Vec<_>>()
+                                    .join(", ")
+                            ),
+                        )
+                    })?)
+                }
+                (OutletMode::Remove, None) => {
+                    return Err(ctx.err(
+                        format!("{ip}.population"),
+                        "required key is missing (boundaries.outlet.mode = \"remove\")",
+                    ));
+                }
+                (OutletMode::Reinsert, Some(_)) => {
+                    return Err(ctx.err(
+                        format!("{ip}.population"),
+                        "not allowed with boundaries.outlet.mode = \"reinsert\" (reinserted particles keep their own size and material)",
+                    ));
+                }
+                (OutletMode::Reinsert, None) => None,
+            };
+            let velocity = match inl.velocity {
+                Some(v) => ctx.vec3(&format!("{ip}.velocity"), v)?,
+                None => DVec3::ZERO,
+            };
+            if planar && velocity.z != 0.0 {
+                return Err(ctx.err(
+                    format!("{ip}.velocity[2]"),
+                    format!("must be 0 in planar mode, got {:?}", velocity.z),
+                ));
+            }
+            let zp = format!("{ip}.zone_height");
+            let zh = ctx.positive(&zp, inl.zone_height)?;
+            if zh <= d_max || zh >= extent[o.axis] {
+                return Err(ctx.err(
+                    zp,
+                    format!(
+                        "must be in ({d_max:?}, {:?}) (above the largest diameter, below the domain extent along {}), got {zh:?}",
+                        extent[o.axis], AXES[o.axis]
+                    ),
+                ));
+            }
+            Some(Inlet {
+                solids_flux,
+                velocity,
+                zone_height: zh,
+                population,
+            })
+        }
+    };
+    let boundaries = Boundaries {
+        axes,
+        wall_material: if any_walls { wall_material } else { None },
+        outlet,
+        inlet,
+    };
+
+    // ---- collisions
+    let rc = raw.collisions.unwrap_or_default();
+    let contact = |path: &str, e_n: f64, beta_0: f64, mu: f64| -> R<ContactParams> {
+        Ok(ContactParams {
+            e_n: ctx.closed(&format!("{path}.e_n"), e_n, 0.0, 1.0)?,
+            beta_0: ctx.closed(&format!("{path}.beta_0"), beta_0, -1.0, 1.0)?,
+            mu: ctx.non_negative(&format!("{path}.mu"), mu)?,
+        })
+    };
+    let mut contacts = ContactTable::new(materials.len());
+    if let Some(d) = rc.default {
+        let p = contact("collisions.default", d.e_n, d.beta_0, d.mu)?;
+        for a in 0..materials.len() {
+            for b in a..materials.len() {
+                contacts.set(a, b, p);
+            }
+        }
+    }
+    let mut seen_pairs: HashMap<(u16, u16), usize> = HashMap::new();
+    for (i, pr) in rc.pairs.iter().enumerate() {
+        let path = format!("collisions.pairs[{i}]");
+        let a = find_material(&format!("{path}.materials[0]"), &pr.materials[0])?;
+        let b = find_material(&format!("{path}.materials[1]"), &pr.materials[1])?;
+        let key = (a.min(b), a.max(b));
+        if let Some(j) = seen_pairs.insert(key, i) {
+            return Err(ctx.err(
+                format!("{path}.materials"),
+                format!(
+                    "duplicate pair ('{}', '{}') (also collisions.pairs[{j}])",
+                    pr.materials[0], pr.materials[1]
+                ),
+            ));
+        }
+        let p = contact(&path, pr.e_n, pr.beta_0, pr.mu)?;
+        contacts.set(a as usize, b as usize, p);
+    }
+    let particle_materials: Vec<u16> = (0..materials.len() as u16)
+        .filter(|&m| materials[m as usize].density.is_some())
+        .collect();
+    let missing = |a: u16, b: u16, what: &str| {
+        let (na, nb) = (&materials[a as usize].name, &materials[b as usize].name);
+        ctx.err(
+            "collisions",
+            format!(
+                "no collision parameters for the {what} pair ('{na}', '{nb}'); add [[collisions.pairs]] with materials = [\"{na}\", \"{nb}\"] or collisions.default"
+            ),
+        )
+    };
+    for (k, &a) in particle_materials.iter().enumerate() {
+        for &b in &particle_materials[k..] {
+            if contacts.get(a, b).is_none() {
+                return Err(missing(a, b, "particle-particle"));
+            }
+        }
+        if let Some(w) = boundaries.wall_material
+            && contacts.get(a, w).is_none()
+        {
+            return Err(missing(a, w, "particle-wall"));
+        }
+    }
+    let tc = ctx.non_negative("collisions.tc", rc.tc.unwrap_or(0.0))?;
+    let max_collisions_per_step = match &rc.max_collisions_per_step {
+        Some(toml::Value::Integer(n)) if *n >= 1 => *n as u64,
+        Some(other) => {
+            return Err(ctx.err(
+                "collisions.max_collisions_per_step",
+                format!("must be a positive integer, got {other}"),
+            ));
+        }
+        None => DEFAULT_MAX_COLLISIONS_PER_STEP,
+    };
+
+    // ---- time
+    let t_end = ctx.positive("time.t_end", raw.time.t_end)?;
+    let dt_flow = raw.time.dt_flow;
+    if !(dt_flow.is_finite() && dt_flow > 0.0 && dt_flow <= t_end) {
+        return Err(ctx.err(
+            "time.dt_flow",
+            format!("must be in (0, t_end = {t_end:?}], got {dt_flow:?}"),
+        ));
+    }
+    let time = TimeSettings {
+        t_end,
+        dt_flow,
+        splitting: raw.time.splitting.unwrap_or(Splitting::FirstOrder),
+    };
+
+    // ---- engine
+    let (queue, skin) = match raw.engine {
+        Some(e) => (e.queue, e.skin),
+        None => (None, None),
+    };
+    let skin = skin.unwrap_or(DEFAULT_SKIN);
+    if !(skin > 0.0 && skin <= 2.0) {
+        return Err(ctx.err("engine.skin", format!("must be in (0, 2], got {skin:?}")));
+    }
+    let engine = EngineSettings {
+        queue: queue.unwrap_or(QueueChoice::IndexedHeap),
+        skin,
+    };
+
+    // ---- output
+    let sample_interval = raw
+        .output
+        .and_then(|o| o.sample_interval)
+        .unwrap_or(t_end / 100.0);
+    if !(sample_interval.is_finite() && sample_interval > 0.0 && sample_interval <= t_end) {
+        return Err(ctx.err(
+            "output.sample_interval",
+            format!("must be in (0, t_end = {t_end:?}], got {sample_interval:?}"),
+        ));
+    }
+
+    Ok(Scenario {
+        name: ctx.file.to_string(),
+        source_text: String::new(),
+        overrides: Vec::new(),
+        effective_toml: String::new(),
+        seed,
+        domain,
+        boundaries,
+        materials,
+        contacts,
+        collisions: CollisionSettings {
+            tc,
+            max_collisions_per_step,
+        },
+        populations,
+        initial: InitialState { checkpoint },
+        time,
+        engine,
+        output: OutputSettings { sample_interval },
+    })
+}
+
+fn placement_name(p: Placement) -> &'static str {
+    match p {
+        Placement::Lattice => "lattice",
+        Placement::Random => "random",
+    }
+}
+
+fn validate_diameter(ctx: &Ctx, path: &str, d: &RawDiameter) -> R<Diameter> {
+    Ok(match d {
+        RawDiameter::Fixed(v) => Diameter::Fixed(ctx.positive(path, *v)?),
+        RawDiameter::Uniform(raw::RawUniform { min, max }) => {
+            let p = format!("{path}.uniform");
+            let min = ctx.positive(&format!("{p}.min"), *min)?;
+            let max = ctx.positive(&format!("{p}.max"), *max)?;
+            if max < min {
+                return Err(ctx.err(
+                    format!("{p}.max"),
+                    format!("must be >= min = {min:?}, got {max:?}"),
+                ));
+            }
+            Diameter::Uniform { min, max }
+        }
+        RawDiameter::Lognormal(raw::RawLognormal {
+            median,
+            sigma_g,
+            min,
+            max,
+        }) => {
+            let p = format!("{path}.lognormal");
+            let median = ctx.positive(&format!("{p}.median"), *median)?;
+            let sigma_g = *sigma_g;
+            if !(sigma_g.is_finite() && sigma_g >= 1.0) {
+                return Err(ctx.err(
+                    format!("{p}.sigma_g"),
+                    format!("must be >= 1 and finite, got {sigma_g:?}"),
+                ));
+            }
+            let min = ctx.positive(&format!("{p}.min"), *min)?;
+            let max = ctx.positive(&format!("{p}.max"), *max)?;
+            if max < min {
+                return Err(ctx.err(
+                    format!("{p}.max"),
+                    format!("must be >= min = {min:?}, got {max:?}"),
+                ));
+            }
+            let mass = lognormal_mass(median, sigma_g, min, max);
+            if mass.is_nan() || mass < LOGNORMAL_MIN_MASS {
+                return Err(ctx.err(
+                    p,
+                    format!(
+                        "[min, max] = [{min:?}, {max:?}] holds a fraction {mass:.3e} of the distribution; at least {LOGNORMAL_MIN_MASS:e} is required"
+                    ),
+                ));
+            }
+            Diameter::Lognormal {
+                median,
+                sigma_g,
+                min,
+                max,
+            }
+        }
+        RawDiameter::Discrete(raw::RawDiscrete { values, weights }) => {
+            let p = format!("{path}.discrete");
+            if values.is_empty() {
+                return Err(ctx.err(format!("{p}.values"), "must not be empty"));
+            }
+            if weights.len() != values.len() {
+                return Err(ctx.err(
+                    format!("{p}.weights"),
+                    format!(
+                        "must have as many entries as values ({}), got {}",
+                        values.len(),
+                        weights.len()
+                    ),
+                ));
+            }
+            for (k, v) in values.iter().enumerate() {
+                ctx.positive(&format!("{p}.values[{k}]"), *v)?;
+            }
+            for (k, w) in weights.iter().enumerate() {
+                ctx.non_negative(&format!("{p}.weights[{k}]"), *w)?;
+            }
+            let sum: f64 = weights.iter().sum();
+            if !(sum > 0.0 && sum.is_finite()) {
+                return Err(ctx.err(
+                    format!("{p}.weights"),
+                    format!("must have a positive finite sum, got {sum:?}"),
+                ));
+            }
+            Diameter::Discrete {
+                values: values.clone(),
+                weights: weights.clone(),
+            }
+        }
+    })
+}
+
+/// Builds a field error for a validated scenario (used by initialisation).
+pub(crate) fn scenario_error(s: &Scenario, path: String, message: String) -> ScenarioError {
+    let overridden: Vec<String> = s
+        .overrides
+        .iter()
+        .filter_map(|o| overrides::display_path(o))
+        .collect();
+    let ctx = Ctx {
+        file: &s.name,
+        text: &s.source_text,
+        overridden: &overridden,
+    };
+    ctx.err(path, message)
+}

@@ -1,0 +1,998 @@
+//! Scenario parsing, validation, overrides and initialisation.
+
+use edpm::initial::{GAP, initial_particles};
+use edpm::particles::NewParticle;
+use edpm::scenario::{AxisBoundary, Diameter, OutletMode, Scenario, ScenarioError};
+use glam::DVec3;
+use proptest::prelude::*;
+use rand::SeedableRng;
+use rand_xoshiro::Xoshiro256PlusPlus;
+
+const BASE: &str = r#"
+seed = 42
+
+[domain]
+lo = [0.0, 0.0, 0.0]
+hi = [0.02, 0.04, 0.02]
+gravity = [0.0, -9.81, 0.0]
+
+[boundaries]
+x = "walls"
+y = "walls"
+z = "periodic"
+wall_material = "steel"
+
+[[materials]]
+name = "glass"
+density = 2500.0
+
+[[materials]]
+name = "steel"
+
+[collisions]
+default = { e_n = 0.9, beta_0 = 0.3, mu = 0.2 }
+
+[[particles]]
+name = "bed"
+material = "glass"
+count = 100
+diameter = 0.001
+placement = "random"
+
+[time]
+t_end = 0.5
+dt_flow = 1e-4
+"#;
+
+fn parse(text: &str) -> Result<Scenario, ScenarioError> {
+    Scenario::from_str_named(text, "test.toml", &[])
+}
+
+fn with(overrides: &[&str]) -> Result<Scenario, ScenarioError> {
+    let o: Vec<String> = overrides.iter().map(|s| s.to_string()).collect();
+    Scenario::from_str_named(BASE, "test.toml", &o)
+}
+
+fn replace(from: &str, to: &str) -> String {
+    assert!(BASE.contains(from), "BASE lacks {from:?}");
+    BASE.replacen(from, to, 1)
+}
+
+/// Asserts a field error at `path` whose message contains `phrase`.
+#[track_caller]
+fn expect_field(r: Result<Scenario, ScenarioError>, path: &str, phrase: &str) -> String {
+    match r {
+        Ok(_) => panic!("expected an error at {path}, got Ok"),
+        Err(e) => {
+            let msg = e.to_string();
+            assert_eq!(e.path(), Some(path), "wrong path in: {msg}");
+            assert!(msg.starts_with("test.toml: "), "no file name in: {msg}");
+            assert!(msg.contains(phrase), "{phrase:?} not in: {msg}");
+            msg
+        }
+    }
+}
+
+fn rng(seed: u64) -> Xoshiro256PlusPlus {
+    Xoshiro256PlusPlus::seed_from_u64(seed)
+}
+
+fn init(s: &Scenario) -> Result<Vec<NewParticle>, ScenarioError> {
+    initial_particles(s, &mut rng(s.seed))
+}
+
+#[test]
+fn base_is_valid_and_resolved() {
+    let s = parse(BASE).unwrap();
+    assert_eq!(s.seed, 42);
+    assert_eq!(
+        s.boundaries.axes,
+        [
+            AxisBoundary::Walls,
+            AxisBoundary::Walls,
+            AxisBoundary::Periodic
+        ]
+    );
+    assert_eq!(s.boundaries.wall_material, Some(1));
+    assert_eq!(s.material_index("steel"), Some(1));
+    assert_eq!(s.contact(0, 1).e_n, 0.9);
+    assert_eq!(s.wall_contact(0).unwrap().mu, 0.2);
+    assert_eq!(s.populations[0].count, 100);
+    assert_eq!(s.output.sample_interval, 0.005);
+    assert_eq!(s.engine.skin, 0.1);
+    assert_eq!(s.source_text, BASE);
+    assert_eq!(init(&s).unwrap().len(), 100);
+}
+
+// ---------------------------------------------------------------- syntax and keys
+
+#[test]
+fn toml_syntax_error_has_line_and_column() {
+    let text = replace("count = 100", "count = = 100");
+    let e = parse(&text).unwrap_err();
+    let msg = e.to_string();
+    let line = text
+        .lines()
+        .position(|l| l.contains("count = = 100"))
+        .unwrap()
+        + 1;
+    match e {
+        ScenarioError::Syntax {
+            line: l, column, ..
+        } => {
+            assert_eq!(l, line, "{msg}");
+            assert!(column > 1, "{msg}");
+        }
+        other => panic!("expected a syntax error, got {other}"),
+    }
+    assert!(
+        msg.starts_with(&format!("test.toml: line {line}, column ")),
+        "{msg}"
+    );
+    assert!(msg.contains("TOML syntax error"), "{msg}");
+}
+
+#[test]
+fn unknown_key_names_key_line_and_column() {
+    let text = replace(
+        "placement = \"random\"",
+        "placement = \"random\"\ncolour = \"red\"",
+    );
+    let msg = expect_field(parse(&text), "particles[0].colour", "unknown key `colour`");
+    let line = text.lines().position(|l| l.starts_with("colour")).unwrap() + 1;
+    assert!(msg.ends_with(&format!("(line {line}, column 1)")), "{msg}");
+    // Unknown top-level section.
+    expect_field(
+        parse(&format!("{BASE}\n[gass]\nvelocity = 1.0\n")),
+        "gass",
+        "unknown key `gass`",
+    );
+    // Unknown key in an inline table.
+    expect_field(
+        parse(&replace("mu = 0.2 }", "mu = 0.2, nu = 1 }")),
+        "collisions.default.nu",
+        "unknown key `nu`",
+    );
+}
+
+#[test]
+fn missing_required_key() {
+    expect_field(
+        parse(&replace("t_end = 0.5\n", "")),
+        "time.t_end",
+        "required key is missing",
+    );
+    expect_field(
+        parse(&replace("seed = 42\n", "")),
+        "seed",
+        "required key is missing",
+    );
+}
+
+#[test]
+fn wrong_types_and_enum_values() {
+    expect_field(
+        parse(&replace("t_end = 0.5", "t_end = \"long\"")),
+        "time.t_end",
+        "invalid type",
+    );
+    expect_field(
+        parse(&replace("x = \"walls\"", "x = \"wals\"")),
+        "boundaries.x",
+        "invalid value `wals`",
+    );
+    expect_field(
+        parse(&replace("lo = [0.0, 0.0, 0.0]", "lo = [0.0, 0.0]")),
+        "domain.lo",
+        "invalid length 2",
+    );
+}
+
+// ---------------------------------------------------------------- numbers
+
+#[test]
+fn negative_count_exact_message() {
+    let text = replace("count = 100", "count = -5");
+    let msg = expect_field(
+        parse(&text),
+        "particles[0].count",
+        "must be a non-negative integer",
+    );
+    let line = text
+        .lines()
+        .position(|l| l.starts_with("count = -5"))
+        .unwrap()
+        + 1;
+    assert_eq!(
+        msg,
+        format!(
+            "test.toml: particles[0].count: must be a non-negative integer, got -5 (line {line}, column 9)"
+        )
+    );
+    expect_field(
+        parse(&replace("count = 100", "count = 2.5")),
+        "particles[0].count",
+        "got 2.5",
+    );
+}
+
+#[test]
+fn diameters_must_be_positive_and_finite() {
+    expect_field(
+        with(&["particles.0.diameter=-0.001"]),
+        "particles[0].diameter",
+        "must be > 0",
+    );
+    expect_field(
+        with(&["particles.0.diameter=nan"]),
+        "particles[0].diameter",
+        "must be > 0",
+    );
+    expect_field(
+        with(&["particles.0.diameter={ uniform = { min = -1e-3, max = 2e-3 } }"]),
+        "particles[0].diameter.uniform.min",
+        "must be > 0 and finite, got -0.001",
+    );
+    expect_field(
+        with(&["particles.0.diameter={ uniform = { min = 2e-3, max = 1e-3 } }"]),
+        "particles[0].diameter.uniform.max",
+        "must be >= min",
+    );
+    expect_field(
+        with(&[
+            "particles.0.diameter={ lognormal = { median = 1e-3, sigma_g = 0.5, min = 5e-4, max = 2e-3 } }",
+        ]),
+        "particles[0].diameter.lognormal.sigma_g",
+        "must be >= 1",
+    );
+    expect_field(
+        with(&[
+            "particles.0.diameter={ lognormal = { median = 1e-3, sigma_g = 1.1, min = 5e-3, max = 6e-3 } }",
+        ]),
+        "particles[0].diameter.lognormal",
+        "of the distribution",
+    );
+    expect_field(
+        with(&["particles.0.diameter={ normal = { mean = 1e-3 } }"]),
+        "particles[0].diameter",
+        "`normal`",
+    );
+    expect_field(
+        with(&[
+            "particles.0.diameter={ uniform = { min = 1e-3, max = 2e-3 }, discrete = { values = [1e-3], weights = [1] } }",
+        ]),
+        "particles[0].diameter",
+        "exactly one",
+    );
+}
+
+#[test]
+fn discrete_weights() {
+    expect_field(
+        with(&["particles.0.diameter={ discrete = { values = [1e-3, 2e-3], weights = [1.0] } }"]),
+        "particles[0].diameter.discrete.weights",
+        "as many entries as values (2), got 1",
+    );
+    expect_field(
+        with(&["particles.0.diameter={ discrete = { values = [1e-3, 2e-3], weights = [0, 0] } }"]),
+        "particles[0].diameter.discrete.weights",
+        "positive finite sum",
+    );
+    expect_field(
+        with(&["particles.0.diameter={ discrete = { values = [1e-3, 2e-3], weights = [1, -1] } }"]),
+        "particles[0].diameter.discrete.weights[1]",
+        "must be >= 0",
+    );
+    let s =
+        with(&["particles.0.diameter={ discrete = { values = [1e-3, 2e-3], weights = [1, 0] } }"])
+            .unwrap();
+    assert_eq!(s.populations[0].diameter.max(), 1e-3);
+}
+
+#[test]
+fn contact_parameter_ranges() {
+    let msg = expect_field(
+        parse(&replace("e_n = 0.9", "e_n = 1.5")),
+        "collisions.default.e_n",
+        "must be in [0.0, 1.0], got 1.5",
+    );
+    assert!(msg.contains("(line "), "{msg}");
+    expect_field(
+        with(&["collisions.default.beta_0=-1.2"]),
+        "collisions.default.beta_0",
+        "[-1.0, 1.0]",
+    );
+    expect_field(
+        with(&["collisions.default.mu=-0.1"]),
+        "collisions.default.mu",
+        "must be >= 0",
+    );
+    expect_field(
+        with(&["materials.0.density=0"]),
+        "materials[0].density",
+        "must be > 0",
+    );
+}
+
+#[test]
+fn missing_pair_parameters_name_the_pair() {
+    let text = replace(
+        "default = { e_n = 0.9, beta_0 = 0.3, mu = 0.2 }",
+        "[[collisions.pairs]]\nmaterials = [\"glass\", \"glass\"]\ne_n = 0.9\nbeta_0 = 0.3\nmu = 0.2",
+    );
+    expect_field(
+        parse(&text),
+        "collisions",
+        "particle-wall pair ('glass', 'steel')",
+    );
+    // With the wall pair, it is complete; pair entries override the default.
+    let text2 = format!(
+        "{BASE}\n[[collisions.pairs]]\nmaterials = [\"steel\", \"glass\"]\ne_n = 0.97\nbeta_0 = 0.33\nmu = 0.1\n"
+    );
+    let s = parse(&text2).unwrap();
+    assert_eq!(s.contact(1, 0).e_n, 0.97);
+    assert_eq!(s.contact(0, 1).e_n, 0.97);
+    assert_eq!(s.contact(0, 0).e_n, 0.9);
+    // A second particle material needs its particle-particle pairs too.
+    let text3 = replace(
+        "default = { e_n = 0.9, beta_0 = 0.3, mu = 0.2 }",
+        "[[collisions.pairs]]\nmaterials = [\"glass\", \"glass\"]\ne_n = 0.9\nbeta_0 = 0.3\nmu = 0.2\n[[collisions.pairs]]\nmaterials = [\"glass\", \"steel\"]\ne_n = 0.9\nbeta_0 = 0.3\nmu = 0.2",
+    )
+    .replace("name = \"steel\"", "name = \"steel\"\n[[materials]]\nname = \"sand\"\ndensity = 2600.0");
+    expect_field(
+        parse(&text3),
+        "collisions",
+        "particle-particle pair ('glass', 'sand')",
+    );
+    // Duplicate pairs.
+    let text4 = format!(
+        "{text2}\n[[collisions.pairs]]\nmaterials = [\"glass\", \"steel\"]\ne_n = 0.9\nbeta_0 = 0.3\nmu = 0.1\n"
+    );
+    expect_field(
+        parse(&text4),
+        "collisions.pairs[1].materials",
+        "duplicate pair",
+    );
+}
+
+#[test]
+fn material_references_and_duplicates() {
+    expect_field(
+        with(&["particles.0.material=sand"]),
+        "particles[0].material",
+        "unknown material 'sand'",
+    );
+    expect_field(
+        with(&["particles.0.material=steel"]),
+        "particles[0].material",
+        "has no density",
+    );
+    expect_field(
+        with(&["boundaries.wall_material=iron"]),
+        "boundaries.wall_material",
+        "unknown material 'iron'",
+    );
+    expect_field(
+        with(&["materials.1.name=glass"]),
+        "materials[1].name",
+        "duplicate material name 'glass'",
+    );
+    let text = format!(
+        "{BASE}\n[[particles]]\nname = \"bed\"\nmaterial = \"glass\"\ncount = 1\ndiameter = 0.001\n"
+    );
+    expect_field(
+        parse(&text),
+        "particles[1].name",
+        "duplicate population name 'bed'",
+    );
+    expect_field(
+        parse(&replace("wall_material = \"steel\"\n", "")),
+        "boundaries.wall_material",
+        "required key is missing",
+    );
+}
+
+#[test]
+fn amounts_and_caps() {
+    expect_field(
+        with(&["particles.0.solids_fraction=0.1"]),
+        "particles[0].solids_fraction",
+        "either count or solids_fraction",
+    );
+    let text = replace("count = 100", "solids_fraction = 0.45");
+    expect_field(
+        parse(&text),
+        "particles[0].solids_fraction",
+        "exceeds the cap 0.3500 for random",
+    );
+    let s = parse(&replace("count = 100", "solids_fraction = 0.1")).unwrap();
+    let v = 0.02 * 0.04 * 0.02;
+    let expected = (0.1 * v / (std::f64::consts::PI / 6.0 * 1e-9)).round() as usize;
+    assert_eq!(s.populations[0].count, expected);
+    expect_field(
+        with(&["particles.0.count=100000"]),
+        "particles[0].count",
+        "do not fit",
+    );
+}
+
+#[test]
+fn lattice_that_does_not_fit_reports_capacity() {
+    // 20 x 40 x 20 mm with 1 mm spheres: walls on x, y (19 x 39 sites),
+    // periodic z (19 sites at spacing >= 1.0001 mm): 14079 sites.
+    let s = with(&["particles.0.placement=lattice", "particles.0.count=14079"]).unwrap();
+    assert_eq!(init(&s).unwrap().len(), 14079);
+    let s = with(&["particles.0.placement=lattice", "particles.0.count=14080"]).unwrap();
+    let e = init(&s).unwrap_err();
+    let msg = e.to_string();
+    assert_eq!(e.path(), Some("particles[0].count"), "{msg}");
+    assert!(
+        msg.contains("do not fit") && msg.contains("holds 14079 sites"),
+        "{msg}"
+    );
+}
+
+#[test]
+fn random_placement_gives_up_with_count() {
+    // 0.34 of the box: below the validation cap, beyond what random
+    // sequential insertion with bounded attempts reaches between walls.
+    let s = with(&[
+        "particles.0.count=1300",
+        "particles.0.region={ lo = [0, 0, 0], hi = [0.01, 0.01, 0.02] }",
+    ]);
+    let s = s.unwrap();
+    let e = init(&s).unwrap_err();
+    let msg = e.to_string();
+    assert_eq!(e.path(), Some("particles[0].count"), "{msg}");
+    assert!(
+        msg.contains("random placement gave up after placing"),
+        "{msg}"
+    );
+    assert!(msg.contains("'bed'"), "{msg}");
+}
+
+#[test]
+fn regions() {
+    expect_field(
+        with(&["particles.0.region={ lo = [0, 0, 0], hi = [0.03, 0.01, 0.01] }"]),
+        "particles[0].region.hi[0]",
+        "inside the domain",
+    );
+    expect_field(
+        with(&["particles.0.region={ lo = [0, 0, 0], hi = [0.0005, 0.01, 0.01] }"]),
+        "particles[0].region",
+        "must exceed the largest diameter",
+    );
+    let s = with(&["particles.0.region={ lo = [0, 0, 0], hi = [0.01, 0.01, 0.01] }"]).unwrap();
+    for p in init(&s).unwrap() {
+        assert!(p.pos.cmpge(DVec3::splat(p.radius)).all());
+        assert!(p.pos.cmple(DVec3::splat(0.01 - p.radius)).all());
+    }
+}
+
+// ---------------------------------------------------------------- domain and boundaries
+
+#[test]
+fn domain_rules() {
+    expect_field(
+        with(&["domain.hi=[0.02, 0.0, 0.02]"]),
+        "domain.hi[1]",
+        "must be greater than domain.lo[1]",
+    );
+    expect_field(
+        with(&["domain.lo=[0.0, inf, 0.0]"]),
+        "domain.lo[1]",
+        "must be finite",
+    );
+    // Periodic axis at least 3 diameters.
+    expect_field(
+        with(&["domain.hi=[0.02, 0.04, 0.0025]"]),
+        "boundaries.z",
+        "3 x the largest diameter",
+    );
+}
+
+#[test]
+fn planar_rules() {
+    let planar = [
+        "domain.planar=true",
+        "boundaries.z=walls",
+        "domain.hi=[0.02, 0.04, 0.001]",
+    ];
+    expect_field(
+        with(&planar),
+        "boundaries.z",
+        "must be absent in planar mode",
+    );
+    let text = replace("z = \"periodic\"\n", "").replace(
+        "hi = [0.02, 0.04, 0.02]",
+        "hi = [0.02, 0.04, 0.001]\nplanar = true",
+    );
+    let s = parse(&text).unwrap();
+    assert_eq!(s.boundaries.axes[2], AxisBoundary::Frozen);
+    expect_field(
+        Scenario::from_str_named(&text, "test.toml", &["domain.gravity=[0, -9.81, 1]".into()]),
+        "domain.gravity[2]",
+        "must be 0 in planar mode",
+    );
+    expect_field(
+        Scenario::from_str_named(&text, "test.toml", &["particles.0.diameter=0.0015".into()]),
+        "domain.hi[2]",
+        "bed depth",
+    );
+    expect_field(
+        Scenario::from_str_named(
+            &text,
+            "test.toml",
+            &["particles.0.velocity=[0, 0, 1]".into()],
+        ),
+        "particles[0].velocity[2]",
+        "must be 0 in planar mode",
+    );
+    let s = Scenario::from_str_named(&text, "test.toml", &["particles.0.temperature=0.01".into()])
+        .unwrap();
+    for p in init(&s).unwrap() {
+        assert_eq!(p.pos.z, 0.0005);
+        assert_eq!(p.vel.z, 0.0);
+    }
+}
+
+#[test]
+fn outlet_and_inlet_rules() {
+    let outlet = "boundaries.outlet={ axis = \"y\", mode = \"remove\" }";
+    let s = with(&[outlet]).unwrap();
+    assert!(!s.boundaries.has_wall(1, true) && s.boundaries.has_wall(1, false));
+    expect_field(
+        with(&["boundaries.outlet={ axis = \"z\", mode = \"remove\" }"]),
+        "boundaries.outlet.axis",
+        "must not be periodic",
+    );
+    expect_field(
+        with(&["boundaries.outlet={ axis = \"y\", mode = \"reinsert\" }"]),
+        "boundaries.outlet.mode",
+        "requires [boundaries.inlet]",
+    );
+    let inlet = |extra: &str| format!("boundaries.inlet={{ zone_height = 0.005{extra} }}");
+    expect_field(
+        with(&[&inlet(", solids_flux = 1.0, population = \"bed\"")]),
+        "boundaries.inlet",
+        "requires [boundaries.outlet]",
+    );
+    expect_field(
+        with(&[outlet, &inlet(", population = \"bed\"")]),
+        "boundaries.inlet.solids_flux",
+        "required key is missing",
+    );
+    expect_field(
+        with(&[outlet, &inlet(", solids_flux = -1.0, population = \"bed\"")]),
+        "boundaries.inlet.solids_flux",
+        "must be > 0",
+    );
+    expect_field(
+        with(&[outlet, &inlet(", solids_flux = 1.0, population = \"feed\"")]),
+        "boundaries.inlet.population",
+        "no [[particles]] population named 'feed'",
+    );
+    expect_field(
+        with(&[
+            outlet,
+            "boundaries.inlet={ zone_height = 0.0005, solids_flux = 1.0, population = \"bed\" }",
+        ]),
+        "boundaries.inlet.zone_height",
+        "above the largest diameter",
+    );
+    expect_field(
+        with(&[
+            outlet,
+            "boundaries.inlet={ zone_height = 0.05, solids_flux = 1.0, population = \"bed\" }",
+        ]),
+        "boundaries.inlet.zone_height",
+        "below the domain extent",
+    );
+    let reinsert = "boundaries.outlet={ axis = \"y\", mode = \"reinsert\" }";
+    expect_field(
+        with(&[reinsert, &inlet(", solids_flux = 1.0")]),
+        "boundaries.inlet.solids_flux",
+        "not allowed",
+    );
+    let s = with(&[
+        outlet,
+        &inlet(", solids_flux = 25.0, population = \"bed\", velocity = [0, 1, 0]"),
+    ])
+    .unwrap();
+    let inl = s.boundaries.inlet.as_ref().unwrap();
+    assert_eq!(inl.population, Some(0));
+    assert_eq!(s.boundaries.outlet.unwrap().mode, OutletMode::Remove);
+    assert!((s.inlet_mass_rate().unwrap() - 25.0 * 0.02 * 0.02).abs() < 1e-15);
+    assert_eq!(s.inlet_zone().unwrap().hi.y, 0.005);
+}
+
+#[test]
+fn time_engine_output_rules() {
+    expect_field(
+        with(&["time.t_end=0"]),
+        "time.t_end",
+        "must be > 0 and finite, got 0.0",
+    );
+    expect_field(
+        with(&["time.dt_flow=1.0"]),
+        "time.dt_flow",
+        "must be in (0, t_end = 0.5], got 1.0",
+    );
+    expect_field(
+        with(&["output.sample_interval=-1"]),
+        "output.sample_interval",
+        "must be in (0, t_end",
+    );
+    expect_field(with(&["engine.skin=3"]), "engine.skin", "must be in (0, 2]");
+    expect_field(
+        with(&["engine.queue=fifo"]),
+        "engine.queue",
+        "invalid value `fifo`",
+    );
+    expect_field(
+        with(&["time.splitting=third-order"]),
+        "time.splitting",
+        "invalid value",
+    );
+    expect_field(
+        with(&["collisions.max_collisions_per_step=0"]),
+        "collisions.max_collisions_per_step",
+        "positive",
+    );
+    expect_field(
+        with(&["collisions.tc=-1e-5"]),
+        "collisions.tc",
+        "must be >= 0",
+    );
+    let s = with(&[
+        "time.splitting=second-order",
+        "engine.queue=calendar",
+        "output.sample_interval=0.1",
+    ])
+    .unwrap();
+    assert_eq!(s.time.splitting, edpm::scenario::Splitting::SecondOrder);
+    assert_eq!(s.engine.queue, edpm::scenario::QueueChoice::Calendar);
+    assert_eq!(s.output.sample_interval, 0.1);
+}
+
+#[test]
+fn populations_required_unless_checkpoint() {
+    let no_particles = BASE.split("[[particles]]").next().unwrap().to_string()
+        + "[time]\nt_end = 0.5\ndt_flow = 1e-4\n";
+    expect_field(
+        parse(&no_particles),
+        "particles",
+        "at least one [[particles]]",
+    );
+    let s = parse(&format!(
+        "{no_particles}\n[initial]\ncheckpoint = \"state.bin\"\n"
+    ))
+    .unwrap();
+    assert!(s.populations.is_empty());
+    assert_eq!(
+        s.initial.checkpoint.as_deref(),
+        Some(std::path::Path::new("state.bin"))
+    );
+}
+
+// ---------------------------------------------------------------- overrides
+
+#[test]
+fn overrides_apply_and_report_bad_paths() {
+    let s = with(&[
+        "time.t_end=0.25",
+        "particles.0.count=200",
+        "collisions.default.e_n=1",
+    ])
+    .unwrap();
+    assert_eq!(s.time.t_end, 0.25);
+    assert_eq!(s.populations[0].count, 200);
+    assert_eq!(s.contact(0, 0).e_n, 1.0);
+    assert_eq!(s.overrides.len(), 3);
+    assert!(s.effective_toml.contains("t_end = 0.25"));
+
+    let e = with(&["particles.3.count=1"]).unwrap_err();
+    let msg = e.to_string();
+    assert!(matches!(e, ScenarioError::Override { .. }), "{msg}");
+    assert!(
+        msg.starts_with("test.toml: --set particles.3.count=1: index 3 out of range"),
+        "{msg}"
+    );
+    let msg = with(&["time.t_end.x=1"]).unwrap_err().to_string();
+    assert!(msg.contains("is a float, not a table"), "{msg}");
+    let msg = with(&["time.t_end"]).unwrap_err().to_string();
+    assert!(msg.contains("expected KEY=VALUE"), "{msg}");
+    let msg = with(&["gas.0.x=1"]).unwrap_err().to_string();
+    assert!(msg.contains("does not exist"), "{msg}");
+    // A created key is validated like any other (no line: it is not in the file).
+    let msg = expect_field(with(&["time.t_ned=1"]), "time.t_ned", "unknown key `t_ned`");
+    assert!(
+        msg.contains("(value from --set)") && !msg.contains("line"),
+        "{msg}"
+    );
+}
+
+// ---------------------------------------------------------------- files, determinism, geometry
+
+#[test]
+fn every_scenario_file_parses_and_initialises() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios");
+    let mut n = 0;
+    for entry in std::fs::read_dir(&dir).unwrap() {
+        let path = entry.unwrap().path();
+        if path.extension().is_some_and(|e| e == "toml") {
+            let s = Scenario::from_file(&path).unwrap_or_else(|e| panic!("{e}"));
+            let ps = init(&s).unwrap_or_else(|e| panic!("{e}"));
+            assert_eq!(ps.len(), s.total_count(), "{}", path.display());
+            assert_no_overlap(&s, &ps);
+            n += 1;
+        }
+    }
+    assert!(n >= 4, "only {n} scenario files");
+}
+
+#[test]
+fn scenario_file_specifics() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios");
+    let hcs = Scenario::from_file(dir.join("hcs-3d.toml")).unwrap();
+    assert_eq!(hcs.total_count(), 2000);
+    assert!(
+        hcs.boundaries
+            .axes
+            .iter()
+            .all(|a| *a == AxisBoundary::Periodic)
+    );
+    let bw = Scenario::from_file(dir.join("box-walls.toml")).unwrap();
+    assert_eq!(bw.total_count(), 500);
+    assert!(matches!(
+        bw.populations[0].diameter,
+        Diameter::Uniform { .. }
+    ));
+    let riser = Scenario::from_file(dir.join("riser-circulating.toml")).unwrap();
+    assert_eq!(riser.boundaries.outlet.unwrap().mode, OutletMode::Reinsert);
+    assert!(riser.domain.planar);
+}
+
+#[test]
+fn deterministic_for_a_seed() {
+    let s = with(&[
+        "particles.0.diameter={ lognormal = { median = 1e-3, sigma_g = 1.2, min = 5e-4, max = 2e-3 } }",
+        "particles.0.temperature=0.01",
+        "particles.0.velocity=[0.1, 0, 0]",
+    ])
+    .unwrap();
+    let a = initial_particles(&s, &mut rng(1)).unwrap();
+    let b = initial_particles(&s, &mut rng(1)).unwrap();
+    let c = initial_particles(&s, &mut rng(2)).unwrap();
+    assert_eq!(a, b);
+    assert_ne!(a, c);
+    assert!(a.iter().all(|p| (2.5e-4..=1e-3).contains(&p.radius)));
+}
+
+fn assert_no_overlap(s: &Scenario, ps: &[NewParticle]) {
+    let len = s.domain.extent();
+    for (i, p) in ps.iter().enumerate() {
+        for ax in 0..3 {
+            match s.boundaries.axes[ax] {
+                AxisBoundary::Walls => {
+                    assert!(
+                        p.pos[ax] - p.radius >= s.domain.lo[ax],
+                        "particle {i} through lo wall {ax}"
+                    );
+                    assert!(
+                        p.pos[ax] + p.radius <= s.domain.hi[ax],
+                        "particle {i} through hi wall {ax}"
+                    );
+                }
+                AxisBoundary::Periodic => {
+                    assert!(p.pos[ax] >= s.domain.lo[ax] && p.pos[ax] < s.domain.hi[ax]);
+                }
+                AxisBoundary::Frozen => assert_eq!(p.pos.z, s.domain.mid_z()),
+            }
+        }
+        for (j, q) in ps.iter().enumerate().skip(i + 1) {
+            let mut d = p.pos - q.pos;
+            for ax in 0..3 {
+                if s.boundaries.axes[ax] == AxisBoundary::Periodic {
+                    d[ax] -= len[ax] * (d[ax] / len[ax]).round();
+                }
+            }
+            assert!(
+                d.length() >= p.radius + q.radius,
+                "particles {i} and {j} overlap: distance {} < {}",
+                d.length(),
+                p.radius + q.radius
+            );
+        }
+    }
+}
+
+#[test]
+fn random_placement_never_overlaps() {
+    // Dense, polydisperse, fully periodic (minimum image), two populations in
+    // overlapping regions.
+    let text = r#"
+seed = 5
+[domain]
+lo = [-0.005, 0.0, 0.0]
+hi = [0.005, 0.006, 0.01]
+[boundaries]
+x = "periodic"
+y = "periodic"
+z = "periodic"
+[[materials]]
+name = "glass"
+density = 2500.0
+[collisions]
+default = { e_n = 0.9, beta_0 = -1.0, mu = 0.0 }
+[[particles]]
+name = "big"
+material = "glass"
+solids_fraction = 0.15
+diameter = { uniform = { min = 1e-3, max = 2e-3 } }
+[[particles]]
+name = "small"
+material = "glass"
+solids_fraction = 0.1
+diameter = { discrete = { values = [4e-4, 6e-4], weights = [1, 1] } }
+[time]
+t_end = 1.0
+dt_flow = 0.01
+"#;
+    let s = parse(text).unwrap();
+    let ps = init(&s).unwrap();
+    assert_eq!(ps.len(), s.total_count());
+    assert!(ps.len() > 500);
+    assert_no_overlap(&s, &ps);
+    // Particles straddle the periodic faces (so minimum image mattered).
+    assert!(ps.iter().any(|p| p.pos.x - p.radius < -0.005));
+
+    // Walls, lattice followed by random in an overlapping region.
+    let text = format!(
+        "{}\n[[particles]]\nname = \"fill\"\nmaterial = \"glass\"\ncount = 2000\ndiameter = {{ uniform = {{ min = 5e-4, max = 1.5e-3 }} }}\n",
+        replace(
+            "placement = \"random\"",
+            "placement = \"lattice\"\ntemperature = 0.1"
+        )
+        .replace("count = 100", "count = 3000")
+    );
+    let s = parse(&text).unwrap();
+    let ps = init(&s).unwrap();
+    assert_eq!(ps.len(), 5000);
+    assert_no_overlap(&s, &ps);
+}
+
+#[test]
+fn temperature_and_mean_are_exact() {
+    for (planar, t) in [(false, 0.01), (true, 0.3)] {
+        let mut o = vec![
+            "particles.0.velocity=[0.5, -0.25, 0.0]".to_string(),
+            format!("particles.0.temperature={t}"),
+        ];
+        if planar {
+            o.extend([
+                "domain.planar=true".to_string(),
+                "domain.hi=[0.02, 0.04, 0.001]".to_string(),
+            ]);
+        }
+        let text = if planar {
+            replace("z = \"periodic\"\n", "")
+        } else {
+            BASE.to_string()
+        };
+        let s = Scenario::from_str_named(&text, "test.toml", &o).unwrap();
+        let ps = init(&s).unwrap();
+        let n = ps.len() as f64;
+        let mean = ps.iter().map(|p| p.vel).sum::<DVec3>() / n;
+        let dims = if planar { 2.0 } else { 3.0 };
+        let ts = ps
+            .iter()
+            .map(|p| (p.vel - mean).length_squared())
+            .sum::<f64>()
+            / (dims * n);
+        assert!(
+            (mean - DVec3::new(0.5, -0.25, 0.0)).abs().max_element() < 1e-14,
+            "{mean}"
+        );
+        assert!((ts / t - 1.0).abs() < 1e-12, "{ts} vs {t}");
+        assert!(ps.iter().all(|p| p.omega == DVec3::ZERO));
+        if planar {
+            assert!(ps.iter().all(|p| p.vel.z == 0.0));
+        }
+    }
+}
+
+#[test]
+fn lattice_fills_from_the_floor() {
+    let s = with(&["particles.0.placement=lattice", "particles.0.count=50"]).unwrap();
+    let ps = init(&s).unwrap();
+    let r = 0.0005;
+    // 50 particles fit into the lowest layer (19 x 19 sites), so all sit at
+    // the lowest site height.
+    let y0 = ps[0].pos.y;
+    assert!(ps.iter().all(|p| p.pos.y == y0));
+    assert!(y0 >= r && y0 < 2.0 * r + 1e-3);
+    assert!(ps[1].pos.x - ps[0].pos.x >= 2.0 * r * (1.0 + GAP));
+}
+
+// ---------------------------------------------------------------- robustness
+
+fn no_panic(text: &str, overrides: &[String]) {
+    if let Ok(s) = Scenario::from_str_named(text, "fuzz.toml", overrides)
+        && s.total_count() <= 3000
+    {
+        let _ = initial_particles(&s, &mut rng(0));
+    }
+}
+
+#[test]
+fn hand_written_bad_inputs_do_not_panic() {
+    let bad = [
+        "",
+        "=",
+        "[",
+        "[[particles]]",
+        "seed = -1",
+        "seed = 1e400",
+        "seed = 1\n[domain]\nlo = 0\n",
+        "seed = \"x\"\n[domain]\nlo=[1,2,3]\nhi=[0,0,0]\n",
+        "seed = 1\ndomain = 5",
+        "\u{0}\u{feff}",
+        "seed = 1\n[domain]\nlo = [0,0,0]\nhi = [1,1,1]\n[[materials]]\nname=\"a\"\ndensity=1\n[time]\nt_end=1\ndt_flow=1\n",
+        "a.b.c.d.e.f = [[[[[]]]]]",
+        "x = 1979-05-27T07:32:00Z",
+    ];
+    for b in bad {
+        no_panic(b, &[]);
+    }
+    let weird_overrides = [
+        "",
+        "=",
+        "...=1",
+        "a..b=1",
+        "particles.-1.count=3",
+        "particles.99999999999999999999.count=1",
+        "particles.0=1",
+        "particles=[]",
+        "materials=[]",
+        "seed=99999999999999999999",
+        "domain.hi=[1e308, 1e308, 1e308]",
+        "particles.0.count=50000001",
+        "particles.0.diameter=1e-300",
+        "particles.0.diameter={ lognormal = { median = 1e-3, sigma_g = 1e300, min = 1e-300, max = 1e300 } }",
+        "particles.0.diameter={ uniform = { min = 1e-300, max = 1e-3 } }",
+        "domain.lo=[-1e308, -1e308, -1e308]",
+        "particles.0.solids_fraction=1e-300",
+        "collisions.pairs=[{}]",
+        "boundaries.outlet={}",
+    ];
+    for o in weird_overrides {
+        no_panic(BASE, &[o.to_string()]);
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 400, ..ProptestConfig::default() })]
+
+    #[test]
+    fn random_text_does_not_panic(text in "[a-z_\\[\\]=\\.,\"{}0-9 \\n-]{0,120}") {
+        no_panic(&text, &[]);
+    }
+
+    #[test]
+    fn mutated_base_does_not_panic(
+        cut in 0usize..600,
+        len in 0usize..40,
+        insert in "[a-z_\\[\\]=\\.,\"{}0-9 \\n-]{0,20}",
+        over in "[a-z_0-9\\.]{1,25}=[a-z0-9\\.\\[\\], \"-]{0,15}",
+    ) {
+        let mut chars: Vec<char> = BASE.chars().collect();
+        let cut = cut.min(chars.len());
+        let end = (cut + len).min(chars.len());
+        chars.splice(cut..end, insert.chars());
+        let text: String = chars.into_iter().collect();
+        no_panic(&text, &[]);
+        no_panic(BASE, &[over]);
+    }
+}
