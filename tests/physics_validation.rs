@@ -126,10 +126,26 @@ fn cool(
     let (dims, rot_dims) = if planar { (2.0, 1.0) } else { (3.0, 3.0) };
     let n = particles.len() as f64;
     let config = EngineConfig { skin: 0.2, seed: 5, ..Default::default() };
+    // Melt the lattice with elastic smooth collisions first: from a lattice,
+    // the first collisions pick the fastest-approaching neighbours, which
+    // biases the loss per collision. After 10 collisions per particle the
+    // positions are random and uncorrelated with the velocities.
+    let mut melt: Engine<IndexedHeap> = Engine::new(
+        domain.clone(),
+        MaterialTable::single(UNIT_MASS_DENSITY, ContactParams::ELASTIC_SMOOTH),
+        config.clone(),
+        particles,
+    )
+    .unwrap();
+    while melt.counters.pair_collisions < 5 * particles.len() as u64 {
+        melt.advance(0.1);
+    }
+    let melted: Vec<NewParticle> = melt
+        .particles()
+        .map(|p| NewParticle { pos: p.pos, vel: p.vel, omega: p.omega, radius: p.radius, material: p.material })
+        .collect();
     let mut engine: Engine<IndexedHeap> =
-        Engine::new(domain, MaterialTable::single(UNIT_MASS_DENSITY, params), config, particles).unwrap();
-    // Inelastic from the first collision, the standard HCS protocol: Haff's
-    // law per collision holds from the start for Gaussian velocities.
+        Engine::new(domain, MaterialTable::single(UNIT_MASS_DENSITY, params), config, &melted).unwrap();
     let mut out = vec![(0.0, temperatures(&engine, dims, rot_dims).0, temperatures(&engine, dims, rot_dims).1)];
     for s in 1..=samples {
         let target = (tau_end * s as f64 / samples as f64 * n / 2.0) as u64;
@@ -191,15 +207,22 @@ fn rough_spheres_reach_the_theoretical_rotational_temperature_ratio() {
     assert!((expected - 0.80983).abs() < 1e-4);
     // μ = 1e6: every collision sticks, i.e. constant β as in the theory.
     let rough = ContactParams { e_n: e, beta_0: beta, mu: 1e6 };
-    let (domain, particles) = gas(4000, 0.05, false, 31);
+    let (domain, mut particles) = gas(4000, 0.05, false, 31);
+    // Start at equipartition, T_rot = T_tr = 1: omega components with
+    // variance T / I = 1 / (0.4 m R²) = 10 for m = 1, R = 1/2.
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(32);
+    for p in &mut particles {
+        p.omega = DVec3::new(standard_normal(&mut rng), standard_normal(&mut rng), standard_normal(&mut rng)) * 10f64.sqrt();
+    }
     let samples = cool(domain, &particles, rough, 16.0, 16);
-    // T_rot starts at 0 and relaxes within a few collisions per particle;
-    // average the ratio over tau in [6, 16].
-    let late: Vec<f64> = samples.iter().filter(|s| s.0 >= 6.0).map(|s| s.2 / s.1).collect();
+    // Measured: the ratio relaxes from 1 and levels off by tau ≈ 8; beyond
+    // tau ≈ 18 it drifts a few per cent lower as velocity correlations grow
+    // (the theory assumes molecular chaos). Average the plateau [8, 16].
+    let late: Vec<f64> = samples.iter().filter(|s| s.0 >= 8.0).map(|s| s.2 / s.1).collect();
     let mean = late.iter().sum::<f64>() / late.len() as f64;
     // The theory assumes molecular chaos and Maxwellian velocities; it is
     // known to hold within a few per cent for dilute systems. 4000
-    // particles give ~1.5 % noise per sample, averaged over 11 samples.
+    // particles give ~1.5 % noise per sample, averaged over 9 samples.
     let rel = (mean - expected) / expected;
     assert!(rel.abs() < 0.03, "T_rot/T_tr = {mean:.4}, theory {expected:.4} ({rel:+.4})");
 }
