@@ -7,9 +7,9 @@
 //! `dt_flow` at which every particle is synchronised and re-predicted, as
 //! in a coupled gas–particle run.
 
+use crate::random::standard_normal;
 use glam::DVec3;
 use rand::SeedableRng;
-use crate::random::standard_normal;
 use rand_xoshiro::Xoshiro256PlusPlus;
 
 use crate::collision::ContactParams;
@@ -83,7 +83,10 @@ pub fn carnahan_starling_z(phi: f64) -> f64 {
 
 /// Process CPU time (s).
 pub fn cpu_time() -> f64 {
-    let mut ts = libc::timespec { tv_sec: 0, tv_nsec: 0 };
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
     // SAFETY: clock_gettime writes into the timespec we pass and has no
     // other effect; CLOCK_PROCESS_CPUTIME_ID is supported on Linux.
     unsafe { libc::clock_gettime(libc::CLOCK_PROCESS_CPUTIME_ID, &mut ts) };
@@ -98,7 +101,12 @@ pub fn fcc_system(n: usize, phi: f64, seed: u64) -> (Domain, Vec<NewParticle>) {
     let volume = count as f64 * std::f64::consts::PI / (6.0 * phi);
     let side = volume.cbrt();
     let a = side / k as f64;
-    let basis = [DVec3::ZERO, DVec3::new(0.5, 0.5, 0.0), DVec3::new(0.5, 0.0, 0.5), DVec3::new(0.0, 0.5, 0.5)];
+    let basis = [
+        DVec3::ZERO,
+        DVec3::new(0.5, 0.5, 0.0),
+        DVec3::new(0.5, 0.0, 0.5),
+        DVec3::new(0.0, 0.5, 0.5),
+    ];
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
     let mut particles = Vec::with_capacity(count);
     for z in 0..k {
@@ -106,14 +114,28 @@ pub fn fcc_system(n: usize, phi: f64, seed: u64) -> (Domain, Vec<NewParticle>) {
             for x in 0..k {
                 for b in basis {
                     let pos = (DVec3::new(x as f64, y as f64, z as f64) + b + 0.25) * a;
-                    let vel = DVec3::new(standard_normal(&mut rng), standard_normal(&mut rng), standard_normal(&mut rng));
-                    particles.push(NewParticle { pos, vel, omega: DVec3::ZERO, radius: 0.5, material: 0 });
+                    let vel = DVec3::new(
+                        standard_normal(&mut rng),
+                        standard_normal(&mut rng),
+                        standard_normal(&mut rng),
+                    );
+                    particles.push(NewParticle {
+                        pos,
+                        vel,
+                        omega: DVec3::ZERO,
+                        radius: 0.5,
+                        material: 0,
+                    });
                 }
             }
         }
     }
     let mean = particles.iter().map(|p| p.vel).sum::<DVec3>() / count as f64;
-    let t = particles.iter().map(|p| (p.vel - mean).length_squared()).sum::<f64>() / (3.0 * count as f64);
+    let t = particles
+        .iter()
+        .map(|p| (p.vel - mean).length_squared())
+        .sum::<f64>()
+        / (3.0 * count as f64);
     for p in &mut particles {
         p.vel = (p.vel - mean) / t.sqrt();
     }
@@ -138,15 +160,23 @@ pub fn run(opts: &BenchOptions) -> BenchResult {
 fn run_with<Q: EventQueue>(opts: &BenchOptions) -> BenchResult {
     let (domain, particles) = fcc_system(opts.n, opts.phi, opts.seed);
     let n = particles.len();
-    let config = EngineConfig { skin: opts.skin, seed: opts.seed, ..Default::default() };
-    let materials = MaterialTable::single(6.0 / std::f64::consts::PI, ContactParams::ELASTIC_SMOOTH);
-    let mut engine: Engine<Q> = Engine::new(domain, materials, config, &particles).expect("lattice is valid");
+    let config = EngineConfig {
+        skin: opts.skin,
+        seed: opts.seed,
+        ..Default::default()
+    };
+    let materials =
+        MaterialTable::single(6.0 / std::f64::consts::PI, ContactParams::ELASTIC_SMOOTH);
+    let mut engine: Engine<Q> =
+        Engine::new(domain, materials, config, &particles).expect("lattice is valid");
     // Enskog mean free time at T = 1: 1 / (4 ρ σ² g0 sqrt(π T / m)),
     // with the Carnahan–Starling contact value g0.
     let rho = 6.0 * opts.phi / std::f64::consts::PI;
     let g0 = (1.0 - 0.5 * opts.phi) / (1.0 - opts.phi).powi(3);
     let mean_free_time = 1.0 / (4.0 * rho * g0 * std::f64::consts::PI.sqrt());
-    let interval = opts.flow_step.map_or(10.0 * mean_free_time, |f| f * mean_free_time);
+    let interval = opts
+        .flow_step
+        .map_or(10.0 * mean_free_time, |f| f * mean_free_time);
     let run_until = |engine: &mut Engine<Q>, collisions: u64| {
         let target = engine.counters.pair_collisions + collisions;
         while engine.counters.pair_collisions < target {
@@ -182,8 +212,11 @@ fn run_with<Q: EventQueue>(opts: &BenchOptions) -> BenchResult {
         pressure_reduced: rho * z,
         pressure_carnahan_starling: rho * carnahan_starling_z(opts.phi),
         bytes_per_particle: engine.bytes_per_particle(),
-        shell_rebuilds_per_collision: (engine.counters.shell_rebuilds - start.shell_rebuilds) as f64 / collisions as f64,
-        stale_events_per_collision: (engine.counters.stale_events - start.stale_events) as f64 / collisions as f64,
+        shell_rebuilds_per_collision: (engine.counters.shell_rebuilds - start.shell_rebuilds)
+            as f64
+            / collisions as f64,
+        stale_events_per_collision: (engine.counters.stale_events - start.stale_events) as f64
+            / collisions as f64,
         energy_drift: (energy_end - energy_start) / energy_start,
     }
 }

@@ -4,6 +4,7 @@ use glam::DVec3;
 
 /// What bounds the domain along one axis.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
 pub enum AxisBoundary {
     /// Plane walls (infinite mass) at `lo` and `hi`.
     Walls,
@@ -16,6 +17,7 @@ pub enum AxisBoundary {
 
 /// What happens to a particle whose centre passes the outlet face.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
 pub enum OutletMode {
     /// The particle leaves the simulation.
     Remove,
@@ -143,7 +145,11 @@ mod tests {
         Domain {
             lo: DVec3::ZERO,
             hi: DVec3::new(1.0, 2.0, 4.0),
-            axes: [AxisBoundary::Periodic, AxisBoundary::Walls, AxisBoundary::Periodic],
+            axes: [
+                AxisBoundary::Periodic,
+                AxisBoundary::Walls,
+                AxisBoundary::Periodic,
+            ],
             outlet: None,
         }
     }
@@ -163,7 +169,10 @@ mod tests {
     #[test]
     fn outlet_replaces_upper_wall_only() {
         let mut d = periodic_box();
-        d.outlet = Some(Outlet { axis: 1, mode: OutletMode::Remove });
+        d.outlet = Some(Outlet {
+            axis: 1,
+            mode: OutletMode::Remove,
+        });
         assert!(d.has_wall(2) && !d.has_wall(3));
         assert!(!d.has_wall(0) && !d.has_wall(5));
     }

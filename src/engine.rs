@@ -227,6 +227,9 @@ pub struct Engine<Q: EventQueue> {
     /// Current time relative to `time_origin` (s).
     now: f64,
     time_origin: f64,
+    /// Round-off carried by `time_origin` (Neumaier summation), so that many
+    /// flow steps add up to the exact end time.
+    time_origin_error: f64,
     needs_prediction: bool,
     /// Particles that left through a reinserting outlet but found no room yet.
     pending_reinsert: Vec<NewParticle>,
@@ -249,7 +252,10 @@ impl<Q: EventQueue> Engine<Q> {
         particles: &[NewParticle],
     ) -> Result<Self, EngineError> {
         if !(config.skin > 0.0 && config.skin.is_finite()) {
-            return Err(EngineError::Config(format!("skin must be > 0 m, got {}", config.skin)));
+            return Err(EngineError::Config(format!(
+                "skin must be > 0 m, got {}",
+                config.skin
+            )));
         }
         if particles.len() > MAX_PARTICLES {
             return Err(EngineError::TooManyParticles);
@@ -326,6 +332,7 @@ impl<Q: EventQueue> Engine<Q> {
             config,
             now: 0.0,
             time_origin: 0.0,
+            time_origin_error: 0.0,
             needs_prediction: true,
             pending_reinsert: Vec::new(),
             scratch: Vec::new(),
@@ -354,7 +361,11 @@ impl<Q: EventQueue> Engine<Q> {
                 let sigma = engine.kin[i].radius + engine.kin[j].radius;
                 let overlap = sigma - d.length();
                 if overlap > 1e-10 * sigma {
-                    return Err(EngineError::Overlap { a: i, b: j, overlap });
+                    return Err(EngineError::Overlap {
+                        a: i,
+                        b: j,
+                        overlap,
+                    });
                 }
             }
         }
@@ -367,23 +378,34 @@ impl<Q: EventQueue> Engine<Q> {
             return bad(format!("radius must be > 0 m, got {}", p.radius));
         }
         if p.radius > self.r_max {
-            return bad(format!("radius {} m exceeds the grid's {} m", p.radius, self.r_max));
+            return bad(format!(
+                "radius {} m exceeds the grid's {} m",
+                p.radius, self.r_max
+            ));
         }
         if !(p.pos.is_finite() && p.vel.is_finite() && p.omega.is_finite()) {
             return bad("position and velocities must be finite".into());
         }
-        if p.material as usize >= self.materials.len() || !(self.materials.density[p.material as usize] > 0.0) {
+        if p.material as usize >= self.materials.len()
+            || !(self.materials.density[p.material as usize] > 0.0)
+        {
             return bad(format!("material {} has no density", p.material));
         }
         for axis in 0..3 {
             let (lo, hi) = (self.domain.lo[axis], self.domain.hi[axis]);
             let inside = match self.domain.axes[axis] {
-                AxisBoundary::Walls => p.pos[axis] - p.radius >= lo - 1e-12 * p.radius && p.pos[axis] + p.radius <= hi + 1e-12 * p.radius,
+                AxisBoundary::Walls => {
+                    p.pos[axis] - p.radius >= lo - 1e-12 * p.radius
+                        && p.pos[axis] + p.radius <= hi + 1e-12 * p.radius
+                }
                 AxisBoundary::Periodic => p.pos[axis] >= lo && p.pos[axis] < hi,
                 AxisBoundary::Frozen => p.vel[axis] == 0.0 && p.omega.x == 0.0 && p.omega.y == 0.0,
             };
             if !inside {
-                return bad(format!("outside the domain or not planar on axis {axis}: position {}, velocity {}", p.pos, p.vel));
+                return bad(format!(
+                    "outside the domain or not planar on axis {axis}: position {}, velocity {}",
+                    p.pos, p.vel
+                ));
             }
         }
         Ok(())
@@ -392,7 +414,12 @@ impl<Q: EventQueue> Engine<Q> {
     /// Stores a particle in a free or new slot at the current time, without
     /// cells, lists or events.
     fn allocate_slot(&mut self, p: &NewParticle) -> usize {
-        let kin = Kinematics { pos: p.pos, time: self.now, vel: p.vel, radius: p.radius };
+        let kin = Kinematics {
+            pos: p.pos,
+            time: self.now,
+            vel: p.vel,
+            radius: p.radius,
+        };
         let inv_mass = 1.0 / self.materials.sphere_mass(p.material, p.radius);
         let id = self.next_id;
         self.next_id += 1;
@@ -435,7 +462,7 @@ impl<Q: EventQueue> Engine<Q> {
 
     /// Absolute simulation time (s).
     pub fn time(&self) -> f64 {
-        self.time_origin + self.now
+        self.time_origin + (self.now + self.time_origin_error)
     }
 
     pub fn domain(&self) -> &Domain {
@@ -583,7 +610,13 @@ impl<Q: EventQueue> Engine<Q> {
             self.step_collisions[i] = 0;
         }
         let shift = self.now;
-        self.time_origin += shift;
+        let sum = self.time_origin + shift;
+        self.time_origin_error += if self.time_origin.abs() >= shift.abs() {
+            (self.time_origin - sum) + shift
+        } else {
+            (shift - sum) + self.time_origin
+        };
+        self.time_origin = sum;
         self.now = 0.0;
         for k in &mut self.kin {
             k.time = 0.0;
@@ -639,7 +672,8 @@ impl<Q: EventQueue> Engine<Q> {
     /// must be synchronised to `now`.
     fn predict(&mut self, i: usize) {
         let ki = self.kin[i];
-        let mut best = geometry::shell_exit_time(ki.pos - self.shell_centre[i], ki.vel, self.config.skin);
+        let mut best =
+            geometry::shell_exit_time(ki.pos - self.shell_centre[i], ki.vel, self.config.skin);
         let mut event = SHELL_EXIT;
         let mut mask = self.face_mask[i];
         while mask != 0 {
@@ -656,8 +690,17 @@ impl<Q: EventQueue> Engine<Q> {
             };
             if t < best {
                 best = t;
-                let kind = if face % 2 == 1 && !self.domain.has_wall(face) { EventKind::Outlet } else { EventKind::Wall };
-                event = Scheduled { kind, face, partner: 0, partner_count: 0 };
+                let kind = if face % 2 == 1 && !self.domain.has_wall(face) {
+                    EventKind::Outlet
+                } else {
+                    EventKind::Wall
+                };
+                event = Scheduled {
+                    kind,
+                    face,
+                    partner: 0,
+                    partner_count: 0,
+                };
             }
         }
         let now = self.now;
@@ -665,7 +708,12 @@ impl<Q: EventQueue> Engine<Q> {
             let (j, code) = neighbours::unpack(entry);
             let kj = &self.kin[j as usize];
             let pj = kj.position_at(now) + self.image_shift[code as usize];
-            let t = geometry::pair_contact_time_before(ki.pos - pj, ki.vel - kj.vel, ki.radius + kj.radius, best);
+            let t = geometry::pair_contact_time_before(
+                ki.pos - pj,
+                ki.vel - kj.vel,
+                ki.radius + kj.radius,
+                best,
+            );
             if t < best {
                 best = t;
                 event = Scheduled {
@@ -712,7 +760,10 @@ impl<Q: EventQueue> Engine<Q> {
         if tc > 0.0 {
             let recent = |k: usize| self.now - self.last_collision[k] < tc;
             if recent(i) || j.is_some_and(recent) {
-                return ContactParams { e_n: 1.0, ..*params };
+                return ContactParams {
+                    e_n: 1.0,
+                    ..*params
+                };
             }
         }
         *params
@@ -739,7 +790,11 @@ impl<Q: EventQueue> Engine<Q> {
         let r = self.kin[i].pos - self.kin[j].pos - self.image_shift[code as usize];
         let dist = r.length();
         let n = r / dist;
-        let params = self.restitution(self.materials.pair(self.material[i], self.material[j]), i, Some(j));
+        let params = self.restitution(
+            self.materials.pair(self.material[i], self.material[j]),
+            i,
+            Some(j),
+        );
         let (a, b) = (self.body(i), self.body(j));
         let (impulse, kind, dissipated) = if self.rough {
             let (a2, b2, imp) = collision::collide(n, &a, &b, &params);
@@ -846,7 +901,8 @@ impl<Q: EventQueue> Engine<Q> {
             if (d + self.image_shift[code as usize]).length_squared() < reach * reach {
                 // Entry in i's list: j appears shifted by `code` relative to i.
                 self.lists.push(i, neighbours::pack(j as u32, code));
-                self.lists.push(j, neighbours::pack(i as u32, mirror_code(code)));
+                self.lists
+                    .push(j, neighbours::pack(i as u32, mirror_code(code)));
             }
         }
         let mut mask = 0u8;
@@ -858,7 +914,11 @@ impl<Q: EventQueue> Engine<Q> {
                 mask |= 1 << (2 * axis);
             }
             let upper = (2 * axis + 1) as Face;
-            let reach_hi = if self.domain.has_wall(upper) { ri } else { self.config.skin };
+            let reach_hi = if self.domain.has_wall(upper) {
+                ri
+            } else {
+                self.config.skin
+            };
             if centre[axis] + reach_hi >= self.domain.hi[axis] {
                 mask |= 1 << upper;
             }
@@ -894,8 +954,15 @@ impl<Q: EventQueue> Engine<Q> {
     fn leave_through_outlet(&mut self, i: usize) {
         let p = self.remove(i);
         if matches!(self.domain.outlet, Some(o) if o.mode == OutletMode::Reinsert) {
-            let inlet = self.config.inlet.expect("reinserting outlet requires an inlet zone");
-            let p = NewParticle { vel: inlet.velocity, omega: DVec3::ZERO, ..p };
+            let inlet = self
+                .config
+                .inlet
+                .expect("reinserting outlet requires an inlet zone");
+            let p = NewParticle {
+                vel: inlet.velocity,
+                omega: DVec3::ZERO,
+                ..p
+            };
             if !self.insert_in_inlet(p) {
                 self.pending_reinsert.push(p);
             }
@@ -921,7 +988,9 @@ impl<Q: EventQueue> Engine<Q> {
     /// was found in a bounded number of attempts.
     pub fn insert_in_inlet(&mut self, p: NewParticle) -> bool {
         use rand::RngExt;
-        let Some(inlet) = self.config.inlet else { return false };
+        let Some(inlet) = self.config.inlet else {
+            return false;
+        };
         let (lo, hi) = (self.domain.lo, self.domain.hi);
         for _ in 0..INSERT_ATTEMPTS {
             let mut pos = DVec3::ZERO;

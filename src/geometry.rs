@@ -77,7 +77,11 @@ pub fn shell_exit_time(d: glam::DVec3, v: glam::DVec3, delta: f64) -> f64 {
     let root = (b * b - a * c).sqrt();
     // Positive root of a t² + 2 b t + c = 0 with c < 0, written without
     // cancellation for either sign of b.
-    if b > 0.0 { -c / (b + root) } else { (root - b) / a }
+    if b > 0.0 {
+        -c / (b + root)
+    } else {
+        (root - b) / a
+    }
 }
 
 #[cfg(test)]
@@ -96,8 +100,14 @@ mod tests {
     fn grazing_miss_and_receding_pairs_never_collide() {
         // Impact parameter 1.0 + 1e-9 > sigma: miss.
         let r = DVec3::new(10.0, 1.0 + 1e-9, 0.0);
-        assert_eq!(pair_contact_time(r, DVec3::new(-1.0, 0.0, 0.0), 1.0), f64::INFINITY);
-        assert_eq!(pair_contact_time(r, DVec3::new(1.0, 0.0, 0.0), 1.0), f64::INFINITY);
+        assert_eq!(
+            pair_contact_time(r, DVec3::new(-1.0, 0.0, 0.0), 1.0),
+            f64::INFINITY
+        );
+        assert_eq!(
+            pair_contact_time(r, DVec3::new(1.0, 0.0, 0.0), 1.0),
+            f64::INFINITY
+        );
     }
 
     #[test]
@@ -111,7 +121,11 @@ mod tests {
         // Gap 1e-12 at unit speed: the naive Eq. 45 loses all digits to
         // cancellation; the conjugate form is accurate to ~1e-4 relative
         // (c = r² - σ² itself carries an absolute error of ~1e-16).
-        let t = pair_contact_time(DVec3::new(1.0 + 1e-12, 0.0, 0.0), DVec3::new(-1.0, 0.0, 0.0), 1.0);
+        let t = pair_contact_time(
+            DVec3::new(1.0 + 1e-12, 0.0, 0.0),
+            DVec3::new(-1.0, 0.0, 0.0),
+            1.0,
+        );
         assert!((t - 1e-12).abs() < 1e-16, "t = {t}");
     }
 
@@ -139,6 +153,9 @@ mod tests {
         let out = shell_exit_time(DVec3::new(0.4, 0.0, 0.0), DVec3::X, 0.5);
         let inw = shell_exit_time(DVec3::new(-0.4, 0.0, 0.0), DVec3::X, 0.5);
         assert!((out - 0.1).abs() < 1e-15 && (inw - 0.9).abs() < 1e-15);
-        assert_eq!(shell_exit_time(DVec3::ZERO, DVec3::ZERO, 0.5), f64::INFINITY);
+        assert_eq!(
+            shell_exit_time(DVec3::ZERO, DVec3::ZERO, 0.5),
+            f64::INFINITY
+        );
     }
 }

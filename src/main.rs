@@ -8,7 +8,11 @@ use edpm::bench::{self, BenchOptions};
 use edpm::queue::QueueKind;
 
 #[derive(Parser)]
-#[command(name = "edpm", version, about = "Event-driven hard-sphere discrete particle model")]
+#[command(
+    name = "edpm",
+    version,
+    about = "Event-driven hard-sphere discrete particle model"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -81,23 +85,54 @@ impl From<QueueArg> for QueueKind {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
-        Command::Run { scenario, out, t_end, overrides, quiet } => {
-            edpm::run::run_cli(&scenario, out.as_deref(), t_end, &overrides, !quiet)
-        }
-        Command::Bench { n, phi, equilibrate, measure, flow_step, skin, queue, seed } => {
+        Command::Run {
+            scenario,
+            out,
+            t_end,
+            overrides,
+            quiet,
+        } => edpm::run::run_cli(&scenario, out.as_deref(), t_end, &overrides, !quiet),
+        Command::Bench {
+            n,
+            phi,
+            equilibrate,
+            measure,
+            flow_step,
+            skin,
+            queue,
+            seed,
+        } => {
             let checks = [
                 (n >= 4, "--n must be at least 4"),
-                (phi > 0.0 && phi < 0.55, "--phi must be in (0, 0.55): the fluid branch"),
-                (equilibrate >= 0.0 && measure > 0.0, "--equilibrate must be >= 0 and --measure > 0"),
+                (
+                    phi > 0.0 && phi < 0.55,
+                    "--phi must be in (0, 0.55): the fluid branch",
+                ),
+                (
+                    equilibrate >= 0.0 && measure > 0.0,
+                    "--equilibrate must be >= 0 and --measure > 0",
+                ),
                 (flow_step.is_none_or(|f| f > 0.0), "--flow-step must be > 0"),
                 (skin > 0.0 && skin <= 2.0, "--skin must be in (0, 2]"),
             ];
             match checks.iter().find(|(ok, _)| !ok) {
                 Some((_, msg)) => Err(anyhow::anyhow!("{msg}")),
                 None => {
-                    let opts = BenchOptions { n, phi, equilibrate, measure, flow_step, skin, queue: queue.into(), seed };
+                    let opts = BenchOptions {
+                        n,
+                        phi,
+                        equilibrate,
+                        measure,
+                        flow_step,
+                        skin,
+                        queue: queue.into(),
+                        seed,
+                    };
                     let r = bench::run(&opts);
-                    println!("{}", serde_json::to_string(&r).expect("bench result serialises"));
+                    println!(
+                        "{}",
+                        serde_json::to_string(&r).expect("bench result serialises")
+                    );
                     Ok(())
                 }
             }

@@ -24,7 +24,11 @@ impl MaterialTable {
         let n = density.len();
         let pair = (0..n * n).map(|k| pair(k / n, k % n)).collect();
         let wall = (0..n).map(wall).collect();
-        MaterialTable { density, pair, wall }
+        MaterialTable {
+            density,
+            pair,
+            wall,
+        }
     }
 
     /// One material of the given density with the same parameters for
@@ -54,7 +58,10 @@ impl MaterialTable {
     /// True when no contact can produce a tangential impulse, so angular
     /// velocities never change and rotation can be skipped.
     pub fn all_smooth(&self) -> bool {
-        self.pair.iter().chain(&self.wall).all(ContactParams::is_smooth)
+        self.pair
+            .iter()
+            .chain(&self.wall)
+            .all(ContactParams::is_smooth)
     }
 
     /// Mass of a solid sphere of material `m` and radius `r` (kg).

@@ -131,7 +131,11 @@ impl CellGrid {
             // absurd grids; wider cells stay correct, only slower.
             let n = ((size[axis] / min_width).floor() as usize).clamp(1, 1 << 12);
             cells[axis] = n;
-            inverse_width[axis] = if size[axis] > 0.0 { n as f64 / size[axis] } else { 0.0 };
+            inverse_width[axis] = if size[axis] > 0.0 {
+                n as f64 / size[axis]
+            } else {
+                0.0
+            };
         }
         let total = cells[0] * cells[1] * cells[2];
         CellGrid {

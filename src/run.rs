@@ -1,4 +1,446 @@
-//! Scenario runs (in progress).
-pub fn run_cli(_: &std::path::Path, _: Option<&std::path::Path>, _: Option<f64>, _: &[String], _: bool) -> anyhow::Result<()> {
-    anyhow::bail!("not implemented")
+//! `edpm run`: a scenario from its initial state to `t_end`, in flow steps.
+//!
+//! Each flow step (Hoomans scheme): insert particles at the inlet, apply
+//! the velocity kicks of the external forces (first order: a full kick
+//! before the flight; second order: half kicks before and after), process
+//! every collision in straight-line flight to the end of the step, then
+//! synchronise all particles. Time series are sampled every
+//! `output.sample_interval`.
+
+use std::io::IsTerminal;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::Context;
+use glam::DVec3;
+use rand::SeedableRng;
+use rand_xoshiro::Xoshiro256PlusPlus;
+
+use crate::collision::ContactParams;
+use crate::domain::{Domain, OutletMode};
+use crate::engine::{CollapseReport, Counters, Engine, EngineConfig, InletZone};
+use crate::materials::MaterialTable;
+use crate::output::{CHECKPOINT_VERSION, Checkpoint, CsvTable, write_atomic};
+use crate::particles::NewParticle;
+use crate::queue::{CalendarQueue, EventQueue, IndexedHeap, QueueKind, ReferenceQueue};
+use crate::scenario::{Scenario, Splitting};
+
+/// Entry point of `edpm run`.
+pub fn run_cli(
+    scenario_path: &Path,
+    out: Option<&Path>,
+    t_end: Option<f64>,
+    overrides: &[String],
+    progress: bool,
+) -> anyhow::Result<()> {
+    let mut overrides = overrides.to_vec();
+    if let Some(t) = t_end {
+        overrides.push(format!("time.t_end={t:e}"));
+    }
+    let scenario = Scenario::from_file_with_overrides(scenario_path, &overrides)?;
+    let out_dir = match out {
+        Some(dir) => dir.to_path_buf(),
+        None => {
+            let stem = scenario_path
+                .file_stem()
+                .map_or("run".into(), |s| s.to_string_lossy().into_owned());
+            PathBuf::from("out").join(stem)
+        }
+    };
+    let summary = run_scenario(
+        &scenario,
+        &out_dir,
+        progress && std::io::stderr().is_terminal(),
+    )?;
+    eprintln!(
+        "edpm: {} particles, {} pair and {} wall collisions in {:.2} s CPU; results in {}",
+        summary.particles_final,
+        summary.counters.pair_collisions,
+        summary.counters.wall_collisions,
+        summary.cpu_seconds,
+        out_dir.display()
+    );
+    Ok(())
+}
+
+/// What a run reports in `summary.json`.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Summary {
+    pub scenario: String,
+    pub overrides: Vec<String>,
+    pub seed: u64,
+    pub t_end: f64,
+    pub dt_flow: f64,
+    pub flow_steps: u64,
+    pub queue: QueueKind,
+    /// Neighbour-shell thickness used (m).
+    pub skin: f64,
+    pub rotation_tracked: bool,
+    pub particles_initial: usize,
+    pub particles_final: usize,
+    pub counters: Counters,
+    pub kinetic_energy_translational: f64,
+    pub kinetic_energy_rotational: f64,
+    pub cpu_seconds: f64,
+    pub wall_seconds: f64,
+    pub events_per_cpu_second: f64,
+    /// Particles that could not be inserted at the inlet for lack of room
+    /// (waiting at the end of the run).
+    pub inlet_backlog: usize,
+    /// Particles that exceeded `max_collisions_per_step` (first 1000).
+    pub collapse_reports: Vec<CollapseReport>,
+    pub collapse_reports_total: usize,
+}
+
+/// The engine's view of the scenario's box.
+pub fn engine_domain(s: &Scenario) -> Domain {
+    Domain {
+        lo: s.domain.lo,
+        hi: s.domain.hi,
+        axes: s.boundaries.axes,
+        outlet: s.boundaries.outlet,
+    }
+}
+
+/// Densities and collision parameters from the scenario. Pairs that can
+/// never meet (wall-only materials) get elastic smooth placeholders.
+pub fn material_table(s: &Scenario) -> MaterialTable {
+    let density = s
+        .materials
+        .iter()
+        .map(|m| m.density.unwrap_or(0.0))
+        .collect();
+    MaterialTable::new(
+        density,
+        |a, b| {
+            s.contacts
+                .get(a as u16, b as u16)
+                .unwrap_or(ContactParams::ELASTIC_SMOOTH)
+        },
+        |m| {
+            s.wall_contact(m as u16)
+                .unwrap_or(ContactParams::ELASTIC_SMOOTH)
+        },
+    )
+}
+
+/// Runs `s` and writes its results into `out_dir`.
+pub fn run_scenario(s: &Scenario, out_dir: &Path, progress: bool) -> anyhow::Result<Summary> {
+    match s.engine.queue {
+        QueueKind::IndexedHeap => simulate::<IndexedHeap>(s, out_dir, progress),
+        QueueKind::Calendar => simulate::<CalendarQueue>(s, out_dir, progress),
+        QueueKind::Reference => simulate::<ReferenceQueue>(s, out_dir, progress),
+    }
+}
+
+/// Builds the engine for a scenario at its initial state.
+pub fn build_engine<Q: EventQueue>(s: &Scenario) -> anyhow::Result<Engine<Q>> {
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(s.seed);
+    let particles = match &s.initial.checkpoint {
+        Some(path) => {
+            let cp = Checkpoint::read(path)?;
+            let mut ps = cp.particles;
+            let more = crate::initial::initial_particles_around(s, &ps, &mut rng)?;
+            ps.extend(more);
+            ps
+        }
+        None => crate::initial::initial_particles(s, &mut rng)?,
+    };
+    let inlet_population = s.boundaries.inlet.as_ref().and_then(|i| i.population);
+    let r_max = particles
+        .iter()
+        .map(|p| p.radius)
+        .chain(inlet_population.map(|k| 0.5 * s.populations[k].diameter.max()))
+        .chain(std::iter::once(0.5 * s.max_diameter()))
+        .fold(0.0, f64::max);
+    let inlet = match (s.boundaries.outlet, &s.boundaries.inlet) {
+        (Some(outlet), Some(inlet)) => Some(InletZone {
+            axis: outlet.axis,
+            height: inlet.zone_height,
+            velocity: inlet.velocity,
+        }),
+        _ => None,
+    };
+    let config = EngineConfig {
+        skin: s.engine.skin * 2.0 * r_max,
+        tc: s.collisions.tc,
+        max_collisions_per_step: u32::try_from(s.collisions.max_collisions_per_step)
+            .unwrap_or(u32::MAX),
+        record_collisions: false,
+        inlet,
+        seed: s.seed ^ 0x9e37_79b9_7f4a_7c15,
+    };
+    Engine::with_capacity_for_radius(
+        engine_domain(s),
+        material_table(s),
+        config,
+        r_max,
+        &particles,
+    )
+    .with_context(|| format!("{}: building the initial state", s.name))
+}
+
+/// Feeds the inlet's solids mass flux: draws particle sizes from the inlet
+/// population and inserts them while the accumulated mass allows.
+struct InletFeeder {
+    mass_rate: f64,
+    population: usize,
+    owed_mass: f64,
+    next: Option<NewParticle>,
+    rng: Xoshiro256PlusPlus,
+}
+
+impl InletFeeder {
+    fn new(s: &Scenario) -> Option<Self> {
+        let inlet = s.boundaries.inlet.as_ref()?;
+        if s.boundaries.outlet?.mode != OutletMode::Remove {
+            return None;
+        }
+        Some(InletFeeder {
+            mass_rate: s.inlet_mass_rate()?,
+            population: inlet.population?,
+            owed_mass: 0.0,
+            next: None,
+            rng: Xoshiro256PlusPlus::seed_from_u64(s.seed.wrapping_add(0x5eed)),
+        })
+    }
+
+    fn feed<Q: EventQueue>(&mut self, s: &Scenario, engine: &mut Engine<Q>, dt: f64) {
+        self.owed_mass += self.mass_rate * dt;
+        let pop = &s.populations[self.population];
+        let velocity = s
+            .boundaries
+            .inlet
+            .as_ref()
+            .map_or(DVec3::ZERO, |i| i.velocity);
+        loop {
+            let p = *self.next.get_or_insert_with(|| NewParticle {
+                pos: DVec3::ZERO,
+                vel: velocity,
+                omega: DVec3::ZERO,
+                radius: 0.5 * pop.diameter.sample(&mut self.rng),
+                material: pop.material,
+            });
+            let mass = engine.materials().sphere_mass(p.material, p.radius);
+            if self.owed_mass < mass || !engine.insert_in_inlet(p) {
+                return;
+            }
+            self.owed_mass -= mass;
+            self.next = None;
+        }
+    }
+
+    fn backlog(&self) -> usize {
+        usize::from(self.next.is_some() && self.owed_mass > 0.0)
+    }
+}
+
+const TIME_SERIES_HEADER: [&str; 14] = [
+    "time_s",
+    "particles",
+    "pair_collisions",
+    "wall_collisions",
+    "ke_translational_J",
+    "ke_rotational_J",
+    "momentum_x_kg_m_s",
+    "momentum_y_kg_m_s",
+    "momentum_z_kg_m_s",
+    "granular_temperature_m2_s2",
+    "pressure_kinetic_Pa",
+    "pressure_collisional_Pa",
+    "dissipated_J",
+    "collapse_reports",
+];
+
+fn simulate<Q: EventQueue>(
+    s: &Scenario,
+    out_dir: &Path,
+    progress: bool,
+) -> anyhow::Result<Summary> {
+    let wall_start = Instant::now();
+    let cpu_start = crate::bench::cpu_time();
+    let mut engine = build_engine::<Q>(s)?;
+    std::fs::create_dir_all(out_dir).with_context(|| format!("creating {}", out_dir.display()))?;
+    let particles_initial = engine.len();
+    let dt = s.time.dt_flow;
+    let steps = (s.time.t_end / dt - 1e-9).ceil().max(1.0) as u64;
+    let gravity = s.domain.gravity;
+    let mut feeder = InletFeeder::new(s);
+    let bar = progress.then(|| {
+        let bar = indicatif::ProgressBar::new(steps);
+        bar.set_style(
+            indicatif::ProgressStyle::with_template("{bar:40} {percent:>3}% t={msg} eta {eta}")
+                .expect("valid progress template"),
+        );
+        bar
+    });
+    let mut series = CsvTable::new(&TIME_SERIES_HEADER);
+    let mut last = engine.counters;
+    let mut last_time = 0.0;
+    let mut collapse_seen = 0;
+    sample_interval_row(&engine, &mut series, &last, 0.0, 0);
+    let mut next_sample = s.output.sample_interval;
+    for step in 0..steps {
+        if let Some(f) = feeder.as_mut() {
+            f.feed(s, &mut engine, dt);
+        }
+        let kick = match s.time.splitting {
+            Splitting::FirstOrder => 1.0,
+            Splitting::SecondOrder => 0.5,
+        };
+        if gravity != DVec3::ZERO {
+            engine.kick_all(gravity * (kick * dt));
+        }
+        engine.advance(dt);
+        engine.end_flow_step();
+        if s.time.splitting == Splitting::SecondOrder && gravity != DVec3::ZERO {
+            engine.kick_all(gravity * (0.5 * dt));
+        }
+        let t = engine.time();
+        if t >= next_sample * (1.0 - 1e-9) || step + 1 == steps {
+            let new_reports = engine.collapse_reports.len() - collapse_seen;
+            collapse_seen = engine.collapse_reports.len();
+            sample_interval_row(&engine, &mut series, &last, t - last_time, new_reports);
+            last = engine.counters;
+            last_time = t;
+            while next_sample <= t * (1.0 + 1e-9) {
+                next_sample += s.output.sample_interval;
+            }
+        }
+        if let Some(bar) = &bar {
+            bar.set_position(step + 1);
+            bar.set_message(format!("{t:.4} s, {} particles", engine.len()));
+        }
+    }
+    if let Some(bar) = bar {
+        bar.finish_and_clear();
+    }
+    let cpu_seconds = crate::bench::cpu_time() - cpu_start;
+    series.write(&out_dir.join("timeseries.csv"))?;
+    let final_particles: Vec<NewParticle> = engine
+        .particles()
+        .map(|p| NewParticle {
+            pos: p.pos,
+            vel: p.vel,
+            omega: p.omega,
+            radius: p.radius,
+            material: p.material,
+        })
+        .collect();
+    Checkpoint {
+        version: CHECKPOINT_VERSION,
+        time: engine.time(),
+        particles: final_particles,
+    }
+    .write(&out_dir.join("final_state.bin"))?;
+    write_particles_csv(&engine, &out_dir.join("final_particles.csv"))?;
+    let (ke_t, ke_r) = engine.kinetic_energy();
+    let events = engine.counters.pair_collisions + engine.counters.wall_collisions;
+    let summary = Summary {
+        scenario: s.name.clone(),
+        overrides: s.overrides.clone(),
+        seed: s.seed,
+        t_end: engine.time(),
+        dt_flow: dt,
+        flow_steps: steps,
+        queue: s.engine.queue,
+        skin: engine.skin(),
+        rotation_tracked: engine.is_rough(),
+        particles_initial,
+        particles_final: engine.len(),
+        counters: engine.counters,
+        kinetic_energy_translational: ke_t,
+        kinetic_energy_rotational: ke_r,
+        cpu_seconds,
+        wall_seconds: wall_start.elapsed().as_secs_f64(),
+        events_per_cpu_second: events as f64 / cpu_seconds.max(1e-9),
+        inlet_backlog: feeder.as_ref().map_or(0, InletFeeder::backlog)
+            + engine.pending_reinsertions(),
+        collapse_reports: engine.collapse_reports.iter().take(1000).copied().collect(),
+        collapse_reports_total: engine.collapse_reports.len(),
+    };
+    let json = serde_json::to_string_pretty(&summary).context("encoding summary")?;
+    write_atomic(&out_dir.join("summary.json"), json.as_bytes())?;
+    Ok(summary)
+}
+
+/// One time-series row. Collision counts, dissipation and the collisional
+/// pressure refer to the interval since the previous row. Pressures:
+/// kinetic `Σ m C² / (d V)` with `C` the velocity relative to the mean,
+/// collisional `Σ r_ab · J / (d V Δt)` (the collision virial), with `d`
+/// the number of moving dimensions and `V` the domain volume.
+fn sample_interval_row<Q: EventQueue>(
+    engine: &Engine<Q>,
+    series: &mut CsvTable,
+    last: &Counters,
+    interval: f64,
+    reports: usize,
+) {
+    let c = &engine.counters;
+    let (ke_t, ke_r) = engine.kinetic_energy();
+    let momentum = engine.momentum();
+    let d = engine.domain().dimensions() as f64;
+    let volume = engine.domain().volume();
+    let mass: f64 = engine.particles().map(|p| p.mass).sum();
+    let mean = if mass > 0.0 {
+        momentum / mass
+    } else {
+        DVec3::ZERO
+    };
+    let fluct: f64 = engine
+        .particles()
+        .map(|p| p.mass * (p.vel - mean).length_squared())
+        .sum();
+    let n = engine.len().max(1) as f64;
+    let temperature = engine
+        .particles()
+        .map(|p| (p.vel - mean).length_squared())
+        .sum::<f64>()
+        / (d * n);
+    let p_coll = if interval > 0.0 {
+        (c.virial - last.virial) / (d * volume * interval)
+    } else {
+        0.0
+    };
+    series.row(&[
+        engine.time(),
+        engine.len() as f64,
+        (c.pair_collisions - last.pair_collisions) as f64,
+        (c.wall_collisions - last.wall_collisions) as f64,
+        ke_t,
+        ke_r,
+        momentum.x,
+        momentum.y,
+        momentum.z,
+        temperature,
+        fluct / (d * volume),
+        p_coll,
+        (c.dissipated_pair + c.dissipated_wall) - (last.dissipated_pair + last.dissipated_wall),
+        reports as f64,
+    ]);
+}
+
+/// Final particle state as CSV (SI units).
+fn write_particles_csv<Q: EventQueue>(engine: &Engine<Q>, path: &Path) -> anyhow::Result<()> {
+    let mut text = String::from(
+        "id,material,radius_m,x_m,y_m,z_m,vx_m_s,vy_m_s,vz_m_s,wx_rad_s,wy_rad_s,wz_rad_s\n",
+    );
+    for p in engine.particles() {
+        text.push_str(&format!(
+            "{},{},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e}\n",
+            p.id,
+            p.material,
+            p.radius,
+            p.pos.x,
+            p.pos.y,
+            p.pos.z,
+            p.vel.x,
+            p.vel.y,
+            p.vel.z,
+            p.omega.x,
+            p.omega.y,
+            p.omega.z
+        ));
+    }
+    write_atomic(path, text.as_bytes())
 }

@@ -50,14 +50,28 @@ fn random_particles(case: &Case, rng: &mut Xoshiro256PlusPlus) -> Vec<NewParticl
         if !clear {
             continue;
         }
-        let mut vel = DVec3::new(rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0));
-        let mut omega = DVec3::new(rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0));
+        let mut vel = DVec3::new(
+            rng.random_range(-1.0..1.0),
+            rng.random_range(-1.0..1.0),
+            rng.random_range(-1.0..1.0),
+        );
+        let mut omega = DVec3::new(
+            rng.random_range(-1.0..1.0),
+            rng.random_range(-1.0..1.0),
+            rng.random_range(-1.0..1.0),
+        );
         if planar {
             vel.z = 0.0;
             omega.x = 0.0;
             omega.y = 0.0;
         }
-        out.push(NewParticle { pos, vel, omega, radius: r, material: 0 });
+        out.push(NewParticle {
+            pos,
+            vel,
+            omega,
+            radius: r,
+            material: 0,
+        });
     }
     out
 }
@@ -110,13 +124,23 @@ struct Prediction {
 }
 
 /// Brute-force earliest collision delay from the current state.
-fn brute_force_next(engine: &Engine<impl EventQueue>, case: &Case, shifts: &[DVec3]) -> Option<Prediction> {
-    let ps: Vec<_> = (0..engine.slots()).filter_map(|i| engine.particle(i).map(|p| (i as u32, p))).collect();
+fn brute_force_next(
+    engine: &Engine<impl EventQueue>,
+    case: &Case,
+    shifts: &[DVec3],
+) -> Option<Prediction> {
+    let ps: Vec<_> = (0..engine.slots())
+        .filter_map(|i| engine.particle(i).map(|p| (i as u32, p)))
+        .collect();
     let dx = 4.0 * f64::EPSILON * case.size.max_element();
     let mut best: Option<Prediction> = None;
     let mut consider = |dt: f64, event: Expected, uncertainty: f64| {
         if dt.is_finite() && best.as_ref().is_none_or(|b| dt < b.dt) {
-            best = Some(Prediction { dt, event, uncertainty });
+            best = Some(Prediction {
+                dt,
+                event,
+                uncertainty,
+            });
         }
     };
     for (a, (ia, pa)) in ps.iter().enumerate() {
@@ -136,7 +160,11 @@ fn brute_force_next(engine: &Engine<impl EventQueue>, case: &Case, shifts: &[DVe
                     continue;
                 }
                 let t = ((-b - disc.sqrt()) / aa).max(0.0);
-                consider(t, Expected::Pair(*ia.min(ib), *ia.max(ib)), 2.0 * sigma * dx / disc.sqrt());
+                consider(
+                    t,
+                    Expected::Pair(*ia.min(ib), *ia.max(ib)),
+                    2.0 * sigma * dx / disc.sqrt(),
+                );
             }
         }
         for axis in 0..3 {
@@ -145,9 +173,17 @@ fn brute_force_next(engine: &Engine<impl EventQueue>, case: &Case, shifts: &[DVe
             }
             let (x, v, r) = (pa.pos[axis], pa.vel[axis], pa.radius);
             if v < 0.0 {
-                consider(((x - r) / -v).max(0.0), Expected::Wall(*ia, 2 * axis as u8), dx / -v);
+                consider(
+                    ((x - r) / -v).max(0.0),
+                    Expected::Wall(*ia, 2 * axis as u8),
+                    dx / -v,
+                );
             } else if v > 0.0 {
-                consider(((case.size[axis] - r - x) / v).max(0.0), Expected::Wall(*ia, 2 * axis as u8 + 1), dx / v);
+                consider(
+                    ((case.size[axis] - r - x) / v).max(0.0),
+                    Expected::Wall(*ia, 2 * axis as u8 + 1),
+                    dx / v,
+                );
             }
         }
     }
@@ -171,7 +207,8 @@ fn check_state(engine: &Engine<impl EventQueue>, case: &Case, shifts: &[DVec3]) 
         for axis in 0..3 {
             if case.axes[axis] == AxisBoundary::Walls {
                 let tol = 1e-12 * pa.radius;
-                inside &= pa.pos[axis] - pa.radius >= -tol && pa.pos[axis] + pa.radius <= case.size[axis] + tol;
+                inside &= pa.pos[axis] - pa.radius >= -tol
+                    && pa.pos[axis] + pa.radius <= case.size[axis] + tol;
             }
         }
     }
@@ -181,9 +218,24 @@ fn check_state(engine: &Engine<impl EventQueue>, case: &Case, shifts: &[DVec3]) 
 fn run_case<Q: EventQueue>(case: &Case, seed: u64, collisions: usize) -> Vec<(f64, Partner, u32)> {
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
     let particles = random_particles(case, &mut rng);
-    let domain = Domain { lo: DVec3::ZERO, hi: case.size, axes: case.axes, outlet: None };
-    let config = EngineConfig { skin: 0.2 * case.radius.1, record_collisions: true, ..Default::default() };
-    let mut engine: Engine<Q> = Engine::new(domain, MaterialTable::single(1.0, case.params), config, &particles).unwrap();
+    let domain = Domain {
+        lo: DVec3::ZERO,
+        hi: case.size,
+        axes: case.axes,
+        outlet: None,
+    };
+    let config = EngineConfig {
+        skin: 0.2 * case.radius.1,
+        record_collisions: true,
+        ..Default::default()
+    };
+    let mut engine: Engine<Q> = Engine::new(
+        domain,
+        MaterialTable::single(1.0, case.params),
+        config,
+        &particles,
+    )
+    .unwrap();
     let shifts = image_shifts(case);
     let dt_flow = 0.05;
     let mut step_left = dt_flow;
@@ -196,15 +248,24 @@ fn run_case<Q: EventQueue>(case: &Case, seed: u64, collisions: usize) -> Vec<(f6
             None => {
                 // Nothing before the end of the flow step: brute force agrees.
                 if let Some(p) = expected {
-                    assert!(p.dt + p.uncertainty >= step_left * (1.0 - 1e-12), "{}: engine missed {:?} at +{}", case.name, p.event, p.dt);
+                    assert!(
+                        p.dt + p.uncertainty >= step_left * (1.0 - 1e-12),
+                        "{}: engine missed {:?} at +{}",
+                        case.name,
+                        p.event,
+                        p.dt
+                    );
                 }
                 engine.end_flow_step();
                 engine.kick_all(case.gravity * dt_flow);
                 step_left = dt_flow;
             }
             Some(rec) => {
-                let Prediction { dt, event: e, uncertainty } =
-                    expected.unwrap_or_else(|| panic!("{}: spurious collision {rec:?}", case.name));
+                let Prediction {
+                    dt,
+                    event: e,
+                    uncertainty,
+                } = expected.unwrap_or_else(|| panic!("{}: spurious collision {rec:?}", case.name));
                 let got = match rec.b {
                     Partner::Particle(b) => Expected::Pair(rec.a.min(b), rec.a.max(b)),
                     Partner::Wall(f) => Expected::Wall(rec.a, f),
@@ -215,24 +276,48 @@ fn run_case<Q: EventQueue>(case: &Case, seed: u64, collisions: usize) -> Vec<(f6
                 // well-conditioned contacts and far below event spacing;
                 // grazing contacts add their conditioning (see Prediction).
                 let tol = 1e-9 * dt_flow + uncertainty;
-                assert!((t_engine - dt).abs() <= tol, "{}: event {} {got:?} at +{t_engine}, brute force {e:?} +{dt} (uncertainty {uncertainty:e}), record {rec:?}", case.name, sequence.len());
+                assert!(
+                    (t_engine - dt).abs() <= tol,
+                    "{}: event {} {got:?} at +{t_engine}, brute force {e:?} +{dt} (uncertainty {uncertainty:e}), record {rec:?}",
+                    case.name,
+                    sequence.len()
+                );
                 if got != e {
                     // Only a genuine near-tie may reorder events.
                     ties += 1;
-                    assert!(ties < 5, "{}: event {}: engine {got:?}, brute force {e:?}", case.name, sequence.len());
+                    assert!(
+                        ties < 5,
+                        "{}: event {}: engine {got:?}, brute force {e:?}",
+                        case.name,
+                        sequence.len()
+                    );
                 }
                 step_left -= t_engine;
                 sequence.push((rec.time, rec.b, rec.a));
                 let (overlap, inside) = check_state(&engine, case, &shifts);
-                assert!(overlap < 1e-10, "{}: overlap {overlap:e} after event {}", case.name, sequence.len());
-                assert!(inside, "{}: particle outside the walls after event {}", case.name, sequence.len());
+                assert!(
+                    overlap < 1e-10,
+                    "{}: overlap {overlap:e} after event {}",
+                    case.name,
+                    sequence.len()
+                );
+                assert!(
+                    inside,
+                    "{}: particle outside the walls after event {}",
+                    case.name,
+                    sequence.len()
+                );
             }
         }
     }
     for p in engine.particles() {
         assert!(p.pos.is_finite() && p.vel.is_finite() && p.omega.is_finite());
         if case.axes[2] == AxisBoundary::Frozen {
-            assert_eq!((p.vel.z, p.omega.x, p.omega.y), (0.0, 0.0, 0.0), "planar motion left the plane");
+            assert_eq!(
+                (p.vel.z, p.omega.x, p.omega.y),
+                (0.0, 0.0, 0.0),
+                "planar motion left the plane"
+            );
         }
     }
     sequence
@@ -240,7 +325,11 @@ fn run_case<Q: EventQueue>(case: &Case, seed: u64, collisions: usize) -> Vec<(f6
 
 fn cases() -> Vec<Case> {
     use AxisBoundary::*;
-    let rough = ContactParams { e_n: 0.9, beta_0: 0.4, mu: 0.3 };
+    let rough = ContactParams {
+        e_n: 0.9,
+        beta_0: 0.4,
+        mu: 0.3,
+    };
     vec![
         Case {
             name: "3d-walls-polydisperse-rough",
@@ -266,7 +355,11 @@ fn cases() -> Vec<Case> {
             size: DVec3::new(9.0, 7.0, 9.0),
             n: 50,
             radius: (0.3, 0.9),
-            params: ContactParams { e_n: 0.95, beta_0: -1.0, mu: 0.0 },
+            params: ContactParams {
+                e_n: 0.95,
+                beta_0: -1.0,
+                mu: 0.0,
+            },
             gravity: DVec3::new(0.0, -0.5, 0.0),
         },
         Case {

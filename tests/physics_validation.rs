@@ -40,11 +40,24 @@ fn collision_virial_pressure_matches_carnahan_starling() {
         // particles (8e5 collisions) put the statistical error of the
         // virial near 0.2 %.
         let rel = (r.pressure_reduced - cs) / cs;
-        assert!(rel.abs() < 0.01, "phi {phi}: beta P sigma^3 = {} vs CS {cs} ({rel:+.4})", r.pressure_reduced);
+        assert!(
+            rel.abs() < 0.01,
+            "phi {phi}: beta P sigma^3 = {} vs CS {cs} ({rel:+.4})",
+            r.pressure_reduced
+        );
         // Elastic collisions conserve energy to round-off: 8e5 collisions of
         // ~1e-16 error each random-walk to ~1e-13.
-        assert!(r.energy_drift.abs() < 1e-10, "phi {phi}: energy drift {}", r.energy_drift);
-        assert!((carnahan_starling_z(phi) - r.pressure_carnahan_starling / (6.0 * phi / std::f64::consts::PI)).abs() < 1e-12);
+        assert!(
+            r.energy_drift.abs() < 1e-10,
+            "phi {phi}: energy drift {}",
+            r.energy_drift
+        );
+        assert!(
+            (carnahan_starling_z(phi)
+                - r.pressure_carnahan_starling / (6.0 * phi / std::f64::consts::PI))
+                .abs()
+                < 1e-12
+        );
     }
 }
 
@@ -60,10 +73,18 @@ fn energy_drift_over_a_million_collisions_is_below_1e_10() {
         queue: QueueKind::IndexedHeap,
         seed: 3,
     });
-    assert!(r.collisions >= 1_000_000, "only {} collisions", r.collisions);
+    assert!(
+        r.collisions >= 1_000_000,
+        "only {} collisions",
+        r.collisions
+    );
     // Flow steps re-predict everything and re-base time; neither may add
     // energy. Round-off alone gives ~1e-13 over 1e6 collisions.
-    assert!(r.energy_drift.abs() < 1e-10, "energy drift {}", r.energy_drift);
+    assert!(
+        r.energy_drift.abs() < 1e-10,
+        "energy drift {}",
+        r.energy_drift
+    );
 }
 
 /// Random non-overlapping unit spheres in a periodic box, Maxwellian at
@@ -86,7 +107,11 @@ fn gas(n: usize, phi: f64, planar: bool, seed: u64) -> (Domain, Vec<NewParticle>
         let domain = Domain {
             lo: DVec3::ZERO,
             hi: DVec3::new(side, side, 1.0),
-            axes: [AxisBoundary::Periodic, AxisBoundary::Periodic, AxisBoundary::Frozen],
+            axes: [
+                AxisBoundary::Periodic,
+                AxisBoundary::Periodic,
+                AxisBoundary::Frozen,
+            ],
             outlet: None,
         };
         (domain, ps)
@@ -125,7 +150,11 @@ fn cool(
     let planar = domain.is_planar();
     let (dims, rot_dims) = if planar { (2.0, 1.0) } else { (3.0, 3.0) };
     let n = particles.len() as f64;
-    let config = EngineConfig { skin: 0.2, seed: 5, ..Default::default() };
+    let config = EngineConfig {
+        skin: 0.2,
+        seed: 5,
+        ..Default::default()
+    };
     // Melt the lattice with elastic smooth collisions first: from a lattice,
     // the first collisions pick the fastest-approaching neighbours, which
     // biases the loss per collision. After 10 collisions per particle the
@@ -142,11 +171,26 @@ fn cool(
     }
     let melted: Vec<NewParticle> = melt
         .particles()
-        .map(|p| NewParticle { pos: p.pos, vel: p.vel, omega: p.omega, radius: p.radius, material: p.material })
+        .map(|p| NewParticle {
+            pos: p.pos,
+            vel: p.vel,
+            omega: p.omega,
+            radius: p.radius,
+            material: p.material,
+        })
         .collect();
-    let mut engine: Engine<IndexedHeap> =
-        Engine::new(domain, MaterialTable::single(UNIT_MASS_DENSITY, params), config, &melted).unwrap();
-    let mut out = vec![(0.0, temperatures(&engine, dims, rot_dims).0, temperatures(&engine, dims, rot_dims).1)];
+    let mut engine: Engine<IndexedHeap> = Engine::new(
+        domain,
+        MaterialTable::single(UNIT_MASS_DENSITY, params),
+        config,
+        &melted,
+    )
+    .unwrap();
+    let mut out = vec![(
+        0.0,
+        temperatures(&engine, dims, rot_dims).0,
+        temperatures(&engine, dims, rot_dims).1,
+    )];
     for s in 1..=samples {
         let target = (tau_end * s as f64 / samples as f64 * n / 2.0) as u64;
         while engine.counters.pair_collisions < target {
@@ -165,7 +209,11 @@ fn cool(
 #[test]
 fn homogeneous_cooling_follows_haffs_law_in_3d_and_planar() {
     let e = 0.9;
-    let smooth = ContactParams { e_n: e, beta_0: -1.0, mu: 0.0 };
+    let smooth = ContactParams {
+        e_n: e,
+        beta_0: -1.0,
+        mu: 0.0,
+    };
     for planar in [false, true] {
         let (domain, particles) = gas(4000, if planar { 0.1 } else { 0.05 }, planar, 21);
         let d = if planar { 2.0 } else { 3.0 };
@@ -179,7 +227,10 @@ fn homogeneous_cooling_follows_haffs_law_in_3d_and_planar() {
             // (|a2| < 0.02 for e = 0.9) change the loss per collision by
             // well under 1 % before clustering (tau = 10 is far from the
             // clustering regime at these densities).
-            assert!(((t - haff) / haff).abs() < 0.01, "planar {planar}: tau {tau}: T = {t}, Haff {haff}");
+            assert!(
+                ((t - haff) / haff).abs() < 0.01,
+                "planar {planar}: tau {tau}: T = {t}, Haff {haff}"
+            );
         }
     }
 }
@@ -206,23 +257,38 @@ fn rough_spheres_reach_the_theoretical_rotational_temperature_ratio() {
     // Hand value of the formula (η = 0.2, A = 0.2075, B = 0.1, C = 0.25).
     assert!((expected - 0.80983).abs() < 1e-4);
     // μ = 1e6: every collision sticks, i.e. constant β as in the theory.
-    let rough = ContactParams { e_n: e, beta_0: beta, mu: 1e6 };
+    let rough = ContactParams {
+        e_n: e,
+        beta_0: beta,
+        mu: 1e6,
+    };
     let (domain, mut particles) = gas(4000, 0.05, false, 31);
     // Start at equipartition, T_rot = T_tr = 1: omega components with
     // variance T / I = 1 / (0.4 m R²) = 10 for m = 1, R = 1/2.
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(32);
     for p in &mut particles {
-        p.omega = DVec3::new(standard_normal(&mut rng), standard_normal(&mut rng), standard_normal(&mut rng)) * 10f64.sqrt();
+        p.omega = DVec3::new(
+            standard_normal(&mut rng),
+            standard_normal(&mut rng),
+            standard_normal(&mut rng),
+        ) * 10f64.sqrt();
     }
     let samples = cool(domain, &particles, rough, 16.0, 16);
     // Measured: the ratio relaxes from 1 and levels off by tau ≈ 8; beyond
     // tau ≈ 18 it drifts a few per cent lower as velocity correlations grow
     // (the theory assumes molecular chaos). Average the plateau [8, 16].
-    let late: Vec<f64> = samples.iter().filter(|s| s.0 >= 8.0).map(|s| s.2 / s.1).collect();
+    let late: Vec<f64> = samples
+        .iter()
+        .filter(|s| s.0 >= 8.0)
+        .map(|s| s.2 / s.1)
+        .collect();
     let mean = late.iter().sum::<f64>() / late.len() as f64;
     // The theory assumes molecular chaos and Maxwellian velocities; it is
     // known to hold within a few per cent for dilute systems. 4000
     // particles give ~1.5 % noise per sample, averaged over 9 samples.
     let rel = (mean - expected) / expected;
-    assert!(rel.abs() < 0.03, "T_rot/T_tr = {mean:.4}, theory {expected:.4} ({rel:+.4})");
+    assert!(
+        rel.abs() < 0.03,
+        "T_rot/T_tr = {mean:.4}, theory {expected:.4} ({rel:+.4})"
+    );
 }

@@ -652,7 +652,7 @@ fn time_engine_output_rules() {
     ])
     .unwrap();
     assert_eq!(s.time.splitting, edpm::scenario::Splitting::SecondOrder);
-    assert_eq!(s.engine.queue, edpm::scenario::QueueChoice::Calendar);
+    assert_eq!(s.engine.queue, edpm::queue::QueueKind::Calendar);
     assert_eq!(s.output.sample_interval, 0.1);
 }
 

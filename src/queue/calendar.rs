@@ -264,8 +264,12 @@ impl CalendarQueue {
     /// narrow or too wide, and enough `set`s have passed to pay for a rebuild.
     fn width_is_poor(&self) -> bool {
         let s = &self.stats;
-        if s.sets > 2 * self.len + 1024 && (s.empties > MAX_EMPTIES_PER_EVENT * s.heap_events) { eprintln!("NARROW"); }
-        if s.sets > 2 * self.len + 1024 && (s.heap_events > MAX_EVENTS_PER_LOAD * s.loads.max(1)) { eprintln!("WIDE"); }
+        if s.sets > 2 * self.len + 1024 && (s.empties > MAX_EMPTIES_PER_EVENT * s.heap_events) {
+            eprintln!("NARROW");
+        }
+        if s.sets > 2 * self.len + 1024 && (s.heap_events > MAX_EVENTS_PER_LOAD * s.loads.max(1)) {
+            eprintln!("WIDE");
+        }
         s.sets > 2 * self.len + 1024
             && (s.empties > MAX_EMPTIES_PER_EVENT * s.heap_events
                 || s.heap_events > MAX_EVENTS_PER_LOAD * s.loads.max(1))

@@ -121,37 +121,7 @@ impl Domain {
     }
 }
 
-/// Boundary type of one axis.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum AxisBoundary {
-    /// Plane walls at `lo` and `hi` (the `hi` wall is replaced by the outlet
-    /// on the outlet axis).
-    Walls,
-    /// Periodic: positions wrap, distances use the minimum image.
-    Periodic,
-    /// z axis in planar mode: no motion along it, no walls, no wrapping
-    /// (same meaning as `edpm::domain::AxisBoundary::Frozen`).
-    Frozen,
-}
-
-/// What happens to particles that cross the outlet.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum OutletMode {
-    /// The particle leaves the simulation.
-    Remove,
-    /// The particle (same radius, material and identity) re-enters through
-    /// the inlet zone with the inlet velocity (circulating riser).
-    Reinsert,
-}
-
-/// Outlet at the `hi` face of `axis`.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Outlet {
-    /// 0 = x, 1 = y, 2 = z; never periodic, never the planar z axis.
-    pub axis: usize,
-    pub mode: OutletMode,
-}
+pub use crate::domain::{AxisBoundary, Outlet, OutletMode};
 
 /// Inlet zone `[lo, lo + zone_height]` along the outlet axis, spanning the
 /// whole domain in the other axes.
@@ -344,19 +314,10 @@ pub struct TimeSettings {
     pub splitting: Splitting,
 }
 
-/// Event queue implementation (maps onto `edpm::queue::QueueKind`).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum QueueChoice {
-    IndexedHeap,
-    Calendar,
-    Reference,
-}
-
 /// `[engine]`.
 #[derive(Clone, Debug, PartialEq)]
 pub struct EngineSettings {
-    pub queue: QueueChoice,
+    pub queue: crate::queue::QueueKind,
     /// Neighbour-shell thickness as a fraction of the largest diameter,
     /// in (0, 2].
     pub skin: f64,

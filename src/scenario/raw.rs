@@ -5,7 +5,7 @@
 use serde::Deserialize;
 use serde::de::{self, MapAccess, Visitor};
 
-use super::{OutletMode, Placement, QueueChoice, Splitting};
+use super::{OutletMode, Placement, Splitting};
 
 /// Fields whose integer range we check ourselves (for uniform messages) are
 /// kept as raw TOML values.
@@ -151,7 +151,7 @@ pub(super) struct RawTime {
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 pub(super) struct RawEngine {
-    pub queue: Option<QueueChoice>,
+    pub queue: Option<crate::queue::QueueKind>,
     pub skin: Option<f64>,
 }
 

@@ -11,7 +11,7 @@ use super::raw::{self, AxisName, RawAxis, RawDiameter, RawInt, RawScenario};
 use super::{
     AxisBoundary, Boundaries, CollisionSettings, ContactTable, Diameter, Domain, EngineSettings,
     InitialState, Inlet, Material, Outlet, OutletMode, OutputSettings, Placement, Population,
-    QueueChoice, Region, Scenario, ScenarioError, Splitting, TimeSettings, locate, overrides,
+    Region, Scenario, ScenarioError, Splitting, TimeSettings, locate, overrides,
 };
 use crate::collision::ContactParams;
 
@@ -743,7 +743,7 @@ pub(crate) fn validate(ctx: &Ctx, raw: RawScenario) -> R<Scenario> {
         return Err(ctx.err("engine.skin", format!("must be in (0, 2], got {skin:?}")));
     }
     let engine = EngineSettings {
-        queue: queue.unwrap_or(QueueChoice::IndexedHeap),
+        queue: queue.unwrap_or(crate::queue::QueueKind::IndexedHeap),
         skin,
     };
 
