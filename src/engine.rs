@@ -19,7 +19,7 @@ use rand::SeedableRng;
 use rand_xoshiro::Xoshiro256PlusPlus;
 
 use crate::collision::{self, Body, CollisionKind, ContactParams};
-use crate::domain::{AxisBoundary, Domain, Face, OutletMode, mirror_code};
+use crate::domain::{AxisBoundary, Domain, Face, IDENTITY_IMAGE, OutletMode, mirror_code};
 use crate::geometry;
 use crate::materials::MaterialTable;
 use crate::neighbours::{self, CellGrid, MAX_PARTICLES, NeighbourLists};
@@ -146,6 +146,14 @@ pub struct ParticleView {
     pub material: u16,
 }
 
+/// A neighbour shell: centre where the list was built, radius `R + δ`.
+#[derive(Clone, Copy, Debug, Default)]
+#[repr(C, align(32))]
+struct Shell {
+    centre: DVec3,
+    reach: f64,
+}
+
 /// Position, velocity, radius and the time they refer to: one cache line.
 #[derive(Clone, Copy, Debug, Default)]
 #[repr(C, align(64))]
@@ -201,6 +209,8 @@ pub struct Engine<Q: EventQueue> {
     r_max: f64,
     /// Whether any contact can change angular velocities.
     rough: bool,
+    /// Whether any axis is periodic (else every image code is the identity).
+    periodic: bool,
     image_shift: [DVec3; 27],
 
     kin: Vec<Kinematics>,
@@ -211,7 +221,7 @@ pub struct Engine<Q: EventQueue> {
     active: Vec<bool>,
     counter: Vec<u32>,
     scheduled: Vec<Scheduled>,
-    shell_centre: Vec<DVec3>,
+    shells: Vec<Shell>,
     /// Bit `f` set when the shell reaches face `f` (wall or outlet).
     face_mask: Vec<u8>,
     last_collision: Vec<f64>,
@@ -233,8 +243,6 @@ pub struct Engine<Q: EventQueue> {
     needs_prediction: bool,
     /// Particles that left through a reinserting outlet but found no room yet.
     pending_reinsert: Vec<NewParticle>,
-    /// Reused buffer for cell-grid searches.
-    scratch: Vec<usize>,
 
     pub counters: Counters,
     pub records: Vec<CollisionRecord>,
@@ -311,6 +319,7 @@ impl<Q: EventQueue> Engine<Q> {
             materials,
             r_max,
             rough,
+            periodic: periodic.contains(&true),
             image_shift,
             kin: Vec::with_capacity(n),
             omega: Vec::with_capacity(n),
@@ -320,7 +329,7 @@ impl<Q: EventQueue> Engine<Q> {
             active: Vec::with_capacity(n),
             counter: Vec::with_capacity(n),
             scheduled: Vec::with_capacity(n),
-            shell_centre: Vec::with_capacity(n),
+            shells: Vec::with_capacity(n),
             face_mask: Vec::with_capacity(n),
             last_collision: Vec::with_capacity(n),
             step_collisions: Vec::with_capacity(n),
@@ -335,7 +344,6 @@ impl<Q: EventQueue> Engine<Q> {
             time_origin_error: 0.0,
             needs_prediction: true,
             pending_reinsert: Vec::new(),
-            scratch: Vec::new(),
             counters: Counters::default(),
             records: Vec::new(),
             collapse_reports: Vec::new(),
@@ -343,8 +351,8 @@ impl<Q: EventQueue> Engine<Q> {
         for (index, p) in particles.iter().enumerate() {
             engine.check_particle(index, p)?;
             let slot = engine.allocate_slot(p);
-            engine.cells.place(slot, p.pos);
-            engine.shell_centre[slot] = p.pos;
+            engine.cells.place(slot, p.pos, engine.shells[slot].reach);
+            engine.shells[slot].centre = p.pos;
         }
         // Build all lists from the cell grid, then check for overlaps.
         for i in 0..engine.kin.len() {
@@ -434,7 +442,10 @@ impl<Q: EventQueue> Engine<Q> {
             self.active[s] = true;
             self.counter[s] = self.counter[s].wrapping_add(1);
             self.scheduled[s] = SHELL_EXIT;
-            self.shell_centre[s] = p.pos;
+            self.shells[s] = Shell {
+                centre: p.pos,
+                reach: p.radius + self.config.skin,
+            };
             self.face_mask[s] = 0;
             self.last_collision[s] = f64::NEG_INFINITY;
             self.step_collisions[s] = 0;
@@ -448,7 +459,10 @@ impl<Q: EventQueue> Engine<Q> {
         self.active.push(true);
         self.counter.push(0);
         self.scheduled.push(SHELL_EXIT);
-        self.shell_centre.push(p.pos);
+        self.shells.push(Shell {
+            centre: p.pos,
+            reach: p.radius + self.config.skin,
+        });
         self.face_mask.push(0);
         self.last_collision.push(f64::NEG_INFINITY);
         self.step_collisions.push(0);
@@ -673,7 +687,7 @@ impl<Q: EventQueue> Engine<Q> {
     fn predict(&mut self, i: usize) {
         let ki = self.kin[i];
         let mut best =
-            geometry::shell_exit_time(ki.pos - self.shell_centre[i], ki.vel, self.config.skin);
+            geometry::shell_exit_time(ki.pos - self.shells[i].centre, ki.vel, self.config.skin);
         let mut event = SHELL_EXIT;
         let mut mask = self.face_mask[i];
         while mask != 0 {
@@ -704,25 +718,28 @@ impl<Q: EventQueue> Engine<Q> {
             }
         }
         let now = self.now;
+        let mut best_entry = None;
         for &entry in self.lists.list(i) {
             let (j, code) = neighbours::unpack(entry);
             let kj = &self.kin[j as usize];
             let pj = kj.position_at(now) + self.image_shift[code as usize];
-            let t = geometry::pair_contact_time_before(
+            let t = geometry::pair_contact_time_eager(
                 ki.pos - pj,
                 ki.vel - kj.vel,
                 ki.radius + kj.radius,
-                best,
             );
             if t < best {
                 best = t;
-                event = Scheduled {
-                    kind: EventKind::Pair,
-                    face: 0,
-                    partner: entry,
-                    partner_count: self.counter[j as usize],
-                };
+                best_entry = Some(entry);
             }
+        }
+        if let Some(entry) = best_entry {
+            event = Scheduled {
+                kind: EventKind::Pair,
+                face: 0,
+                partner: entry,
+                partner_count: self.counter[neighbours::unpack(entry).0 as usize],
+            };
         }
         self.scheduled[i] = event;
         self.queue.set(i as u32, now + best);
@@ -884,27 +901,32 @@ impl<Q: EventQueue> Engine<Q> {
             self.lists.remove_index(j as usize, i as u32);
         }
         self.lists.clear(i);
-        self.shell_centre[i] = centre;
-        self.cells.place(i, centre);
-        let ri = self.kin[i].radius + self.config.skin;
-        let mut found = std::mem::take(&mut self.scratch);
-        found.clear();
-        self.cells.for_each_near(centre, |j| {
-            if j != i {
-                found.push(j);
+        self.shells[i].centre = centre;
+        let ri = self.shells[i].reach;
+        self.cells.place(i, centre, ri);
+        // Disjoint field borrows: the grid is read while the lists change.
+        let (lists, domain, shifts) = (&mut self.lists, &self.domain, &self.image_shift);
+        let periodic = self.periodic;
+        self.cells.for_each_near(centre, |e, image| {
+            let j = e.index as usize;
+            if j == i {
+                return;
+            }
+            let d = e.centre - centre;
+            let code = match image {
+                Some(code) => code,
+                None if periodic => domain.image_code(d),
+                None => IDENTITY_IMAGE,
+            };
+            // The grid stores the reach rounded up to f32: slightly
+            // generous lists are safe, missing pairs would not be.
+            let reach = ri + e.reach as f64;
+            if (d + shifts[code as usize]).length_squared() < reach * reach {
+                // Entry in i's list: j appears shifted by `code` relative to i.
+                lists.push(i, neighbours::pack(j as u32, code));
+                lists.push(j, neighbours::pack(i as u32, mirror_code(code)));
             }
         });
-        for &j in &found {
-            let d = self.shell_centre[j] - centre;
-            let code = self.domain.image_code(d);
-            let reach = ri + self.kin[j].radius + self.config.skin;
-            if (d + self.image_shift[code as usize]).length_squared() < reach * reach {
-                // Entry in i's list: j appears shifted by `code` relative to i.
-                self.lists.push(i, neighbours::pack(j as u32, code));
-                self.lists
-                    .push(j, neighbours::pack(i as u32, mirror_code(code)));
-            }
-        }
         let mut mask = 0u8;
         for axis in 0..3 {
             if self.domain.axes[axis] != AxisBoundary::Walls {
@@ -924,7 +946,6 @@ impl<Q: EventQueue> Engine<Q> {
             }
         }
         self.face_mask[i] = mask;
-        self.scratch = found;
     }
 
     /// Takes particle i out of the simulation and returns it.
@@ -1030,7 +1051,8 @@ impl<Q: EventQueue> Engine<Q> {
         }
         let mut overlaps = false;
         let now = self.now;
-        self.cells.for_each_near(p.pos, |j| {
+        self.cells.for_each_near(p.pos, |e, _| {
+            let j = e.index as usize;
             let kj = &self.kin[j];
             let d = p.pos - kj.position_at(now);
             let d = d + self.image_shift[self.domain.image_code(d) as usize];

@@ -106,18 +106,30 @@ impl NeighbourLists {
     }
 }
 
-/// Uniform grid of cells holding particles by shell centre, as doubly
-/// linked lists, so moving one particle is O(1).
+/// One particle's shell as stored in its cell: centre, radius `R + δ`
+/// and slot, contiguous so that a neighbour search scans memory linearly.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[repr(C)]
+pub struct CellEntry {
+    pub centre: DVec3,
+    pub reach: f32,
+    pub index: u32,
+}
+
+/// Uniform grid of cells holding particles by shell centre. Each cell is a
+/// fixed-stride block of [`CellEntry`] in one flat array (the stride grows
+/// when a cell overflows); `position[i]` locates particle i for O(1) moves.
 #[derive(Clone, Debug)]
 pub struct CellGrid {
     lo: DVec3,
     cells: [usize; 3],
     inverse_width: DVec3,
     periodic: [bool; 3],
-    head: Vec<u32>,
-    next: Vec<u32>,
-    prev: Vec<u32>,
-    cell_of: Vec<u32>,
+    stride: usize,
+    len: Vec<u32>,
+    entries: Vec<CellEntry>,
+    /// (cell, offset in cell) of each particle, `NONE` cell when absent.
+    position: Vec<(u32, u32)>,
 }
 
 impl CellGrid {
@@ -129,7 +141,7 @@ impl CellGrid {
         for axis in 0..3 {
             // Cap the cell count so huge dilute domains do not allocate
             // absurd grids; wider cells stay correct, only slower.
-            let n = ((size[axis] / min_width).floor() as usize).clamp(1, 1 << 12);
+            let n = ((size[axis] / min_width).floor() as usize).clamp(1, 1 << 10);
             cells[axis] = n;
             inverse_width[axis] = if size[axis] > 0.0 {
                 n as f64 / size[axis]
@@ -138,29 +150,30 @@ impl CellGrid {
             };
         }
         let total = cells[0] * cells[1] * cells[2];
+        let stride = 4;
         CellGrid {
             lo,
             cells,
             inverse_width,
             periodic,
-            head: vec![NONE; total],
-            next: vec![NONE; slots],
-            prev: vec![NONE; slots],
-            cell_of: vec![NONE; slots],
+            stride,
+            len: vec![0; total],
+            entries: vec![CellEntry::default(); total * stride],
+            position: vec![(NONE, 0); slots],
         }
     }
 
     pub fn resize(&mut self, slots: usize) {
-        self.next.resize(slots, NONE);
-        self.prev.resize(slots, NONE);
-        self.cell_of.resize(slots, NONE);
+        self.position.resize(slots, (NONE, 0));
     }
 
     /// Cell coordinates of a point, clamped into the grid.
     fn coords(&self, p: DVec3) -> [usize; 3] {
         let mut c = [0usize; 3];
         for axis in 0..3 {
-            let x = ((p[axis] - self.lo[axis]) * self.inverse_width[axis]).floor();
+            // `as usize` truncates, which is floor for the non-negative
+            // values that remain after clamping (and avoids a libm call).
+            let x = (p[axis] - self.lo[axis]) * self.inverse_width[axis];
             c[axis] = (x.max(0.0) as usize).min(self.cells[axis] - 1);
         }
         c
@@ -170,77 +183,109 @@ impl CellGrid {
         c[0] + self.cells[0] * (c[1] + self.cells[1] * c[2])
     }
 
-    /// Puts particle `i` in the cell containing `p` (removing it first from
-    /// any cell it was in).
-    pub fn place(&mut self, i: usize, p: DVec3) {
-        let cell = self.flat(self.coords(p)) as u32;
-        if self.cell_of[i] == cell {
-            return;
-        }
+    /// Puts particle `i` with shell `centre` and radius `reach` into the
+    /// cell containing `centre`, removing it from any cell it was in.
+    pub fn place(&mut self, i: usize, centre: DVec3, reach: f64) {
         self.remove(i);
-        let old_head = self.head[cell as usize];
-        self.next[i] = old_head;
-        self.prev[i] = NONE;
-        if old_head != NONE {
-            self.prev[old_head as usize] = i as u32;
+        let cell = self.flat(self.coords(centre));
+        if self.len[cell] as usize == self.stride {
+            self.grow();
         }
-        self.head[cell as usize] = i as u32;
-        self.cell_of[i] = cell;
+        let k = self.len[cell] as usize;
+        // Round the reach up so that f32 storage never shrinks a shell.
+        let reach = (reach as f32).next_up();
+        self.entries[cell * self.stride + k] = CellEntry {
+            centre,
+            reach,
+            index: i as u32,
+        };
+        self.len[cell] += 1;
+        self.position[i] = (cell as u32, k as u32);
     }
 
     /// Takes particle `i` out of its cell, if it is in one.
     pub fn remove(&mut self, i: usize) {
-        let cell = self.cell_of[i];
+        let (cell, k) = self.position[i];
         if cell == NONE {
             return;
         }
-        let (p, n) = (self.prev[i], self.next[i]);
-        if p == NONE {
-            self.head[cell as usize] = n;
-        } else {
-            self.next[p as usize] = n;
+        let (cell, k) = (cell as usize, k as usize);
+        let last = self.len[cell] as usize - 1;
+        let base = cell * self.stride;
+        if k != last {
+            let moved = self.entries[base + last];
+            self.entries[base + k] = moved;
+            self.position[moved.index as usize].1 = k as u32;
         }
-        if n != NONE {
-            self.prev[n as usize] = p;
-        }
-        self.cell_of[i] = NONE;
-        self.next[i] = NONE;
-        self.prev[i] = NONE;
+        self.len[cell] -= 1;
+        self.position[i] = (NONE, 0);
     }
 
-    /// Calls `f` once for every particle in the cell of `p` and its
-    /// neighbouring cells (wrapping on periodic axes; each cell visited once
-    /// even when an axis has fewer than three cells).
-    pub fn for_each_near(&self, p: DVec3, mut f: impl FnMut(usize)) {
+    fn grow(&mut self) {
+        let new_stride = self.stride * 2;
+        let mut entries = vec![CellEntry::default(); self.len.len() * new_stride];
+        for (cell, &n) in self.len.iter().enumerate() {
+            let n = n as usize;
+            entries[cell * new_stride..cell * new_stride + n]
+                .copy_from_slice(&self.entries[cell * self.stride..cell * self.stride + n]);
+        }
+        self.entries = entries;
+        self.stride = new_stride;
+    }
+
+    /// Entries per cell the grid is laid out for (memory reports).
+    pub fn stride(&self) -> usize {
+        self.stride
+    }
+
+    /// Number of cells.
+    pub fn cell_count(&self) -> usize {
+        self.len.len()
+    }
+
+    /// Calls `f(entry, image)` once for every entry in the cell of `p` and
+    /// its neighbouring cells (wrapping on periodic axes; each cell visited
+    /// once even when an axis has fewer than three cells). `image` is the
+    /// periodic image code (see [`crate::domain::Domain::image_code`]) of the
+    /// shift that brings the entry next to `p`, known from the wrap of the
+    /// cell index; it is `None` when an axis has fewer than three cells and
+    /// the caller must find the image from the displacement.
+    pub fn for_each_near(&self, p: DVec3, mut f: impl FnMut(&CellEntry, Option<u32>)) {
         let c = self.coords(p);
-        let mut ranges = [[0usize; 3]; 3];
+        // Per axis: (cell index, image component 0/1/2 for shift -L/0/+L).
+        let mut ranges = [[(0usize, 1u32); 3]; 3];
         let mut counts = [0usize; 3];
+        let mut exact = true;
         for axis in 0..3 {
             let n = self.cells[axis];
             let mut k = 0;
-            let mut add = |v: usize| {
-                if !ranges[axis][..k].contains(&v) {
-                    ranges[axis][k] = v;
-                    k += 1;
-                }
-            };
             for offset in [-1i64, 0, 1] {
-                let v = c[axis] as i64 + offset;
-                if (0..n as i64).contains(&v) {
-                    add(v as usize);
-                } else if self.periodic[axis] {
-                    add(v.rem_euclid(n as i64) as usize);
+                let mut v = c[axis] as i64 + offset;
+                let mut image = 1;
+                if v < 0 || v >= n as i64 {
+                    if !self.periodic[axis] {
+                        continue;
+                    }
+                    // Wrapped below 0: the neighbour sits near hi, shift -L.
+                    image = if v < 0 { 0 } else { 2 };
+                    v = v.rem_euclid(n as i64);
+                }
+                if !ranges[axis][..k].iter().any(|r| r.0 == v as usize) {
+                    ranges[axis][k] = (v as usize, image);
+                    k += 1;
                 }
             }
             counts[axis] = k;
+            exact &= !self.periodic[axis] || n >= 3;
         }
-        for &z in &ranges[2][..counts[2]] {
-            for &y in &ranges[1][..counts[1]] {
-                for &x in &ranges[0][..counts[0]] {
-                    let mut j = self.head[self.flat([x, y, z])];
-                    while j != NONE {
-                        f(j as usize);
-                        j = self.next[j as usize];
+        for &(z, iz) in &ranges[2][..counts[2]] {
+            for &(y, iy) in &ranges[1][..counts[1]] {
+                for &(x, ix) in &ranges[0][..counts[0]] {
+                    let cell = self.flat([x, y, z]);
+                    let base = cell * self.stride;
+                    let image = exact.then_some(ix + 3 * iy + 9 * iz);
+                    for e in &self.entries[base..base + self.len[cell] as usize] {
+                        f(e, image);
                     }
                 }
             }
@@ -270,17 +315,33 @@ mod tests {
     fn grid_finds_each_near_particle_once_with_periodic_wrap() {
         let lo = DVec3::ZERO;
         let hi = DVec3::new(10.0, 10.0, 2.0);
-        let mut g = CellGrid::new(lo, hi, 1.0, [true, false, true], 3);
-        g.place(0, DVec3::new(0.5, 0.5, 0.5));
-        g.place(1, DVec3::new(9.5, 0.5, 1.5)); // across the periodic x face
-        g.place(2, DVec3::new(5.0, 5.0, 1.0));
-        let mut seen = Vec::new();
-        g.for_each_near(DVec3::new(0.2, 0.2, 0.2), |j| seen.push(j));
-        seen.sort();
-        assert_eq!(seen, vec![0, 1]);
+        let mut g = CellGrid::new(lo, hi, 1.0, [true, false, true], 12);
+        g.place(0, DVec3::new(0.5, 0.5, 0.5), 0.6);
+        g.place(1, DVec3::new(9.5, 0.5, 1.5), 0.6); // across the periodic x face
+        g.place(2, DVec3::new(5.0, 5.0, 1.0), 0.6);
+        // Overfill one cell to force the stride to grow.
+        for i in 3..12 {
+            g.place(i, DVec3::new(5.1, 5.1, 1.1), 0.6);
+        }
+        let near = |g: &CellGrid, p: DVec3| {
+            let mut seen = Vec::new();
+            g.for_each_near(p, |e, _| seen.push(e.index));
+            seen.sort();
+            seen
+        };
+        assert_eq!(near(&g, DVec3::new(0.2, 0.2, 0.2)), vec![0, 1]);
+        assert_eq!(
+            near(&g, DVec3::new(5.0, 5.0, 1.0)),
+            (2..12).collect::<Vec<u32>>()
+        );
         g.remove(1);
-        seen.clear();
-        g.for_each_near(DVec3::new(0.2, 0.2, 0.2), |j| seen.push(j));
-        assert_eq!(seen, vec![0]);
+        g.remove(5);
+        g.place(2, DVec3::new(0.1, 9.9, 0.1), 0.6);
+        assert_eq!(near(&g, DVec3::new(0.2, 0.2, 0.2)), vec![0]);
+        assert_eq!(
+            near(&g, DVec3::new(5.0, 5.0, 1.0)),
+            vec![3, 4, 6, 7, 8, 9, 10, 11]
+        );
+        assert_eq!(near(&g, DVec3::new(0.2, 9.8, 0.2)), vec![2]);
     }
 }

@@ -17,12 +17,18 @@
 //! minimum. This holds for any time passed to `set`, even one earlier than the
 //! last minimum (it then joins the current heap).
 //!
-//! Each particle's slot records its container and position there, so `set`
-//! and `remove` are O(1) outside the heap. The width is tuned from the
-//! density of the earliest pending events whenever the queue is rebuilt: on the
-//! first `peek_min` after `clear` (or after construction), when only overflow
-//! events remain, and when running statistics show the buckets are much too
-//! narrow (many empty buckets skipped) or too wide (crowded heap).
+//! A ring bucket is one cache line holding up to [`LINE_CAP`] particle
+//! indices (event times live in the per-particle slots), with a rarely used
+//! spill vector beyond that; so moving an event between buckets touches about
+//! three cache lines. Removal from a line is a scan of at most [`LINE_CAP`]
+//! indices; every other container records positions in the slots. Hence `set`
+//! and `remove` are O(1) outside the small current heap.
+//!
+//! The width is re-tuned from the density of the earliest pending events
+//! whenever the queue is rebuilt: on the first `peek_min` after `clear` (or
+//! construction), when only overflow events remain, and when running
+//! statistics show the buckets much too narrow (many empty buckets skipped)
+//! or too wide (crowded heap).
 
 use super::EventQueue;
 use super::indexed_heap::{self, Entry};
@@ -37,11 +43,13 @@ const WIDTH_SAMPLE: usize = 256;
 const MAX_EMPTIES_PER_EVENT: usize = 4;
 /// Rebuild when more than this many events pass through each heap load.
 const MAX_EVENTS_PER_LOAD: usize = 16;
-/// `set` checks the bucket width every this many calls.
-const CHECK_EVERY: usize = 1024;
-
-/// Cap on bucket numbers (2^62).
+/// The bucket width is judged every `2 len + CHECK_MIN_SETS` calls to `set`
+/// (often enough to follow changes, rarely enough to pay for a rebuild).
+const CHECK_MIN_SETS: usize = 1024;
+/// Cap on bucket numbers (2^62), so that `cur + nb` never overflows.
 const MAX_BUCKET: f64 = 4_611_686_018_427_387_904.0;
+/// Indices held inline by a ring bucket.
+const LINE_CAP: usize = 15;
 
 /// Slot `loc` of a particle without an event.
 const ABSENT: u32 = u32::MAX;
@@ -51,18 +59,35 @@ const HEAP: u32 = u32::MAX - 1;
 const OVERFLOW: u32 = u32::MAX - 2;
 /// Slot `loc` of a particle whose event is at `+∞`.
 const INFINITE: u32 = u32::MAX - 3;
+/// Slot `pos` of a ring event held in its bucket's line (not its spill).
+const IN_LINE: u32 = u32::MAX;
 
-/// Where a particle's event is: `loc` is a ring bucket or one of the
-/// constants above, `pos` the position within that container.
+/// A particle's event time and where it is: `loc` is a ring bucket or one of
+/// the constants above, `pos` the position within that container.
 #[derive(Clone, Copy, Debug)]
 struct Slot {
+    t: f64,
     loc: u32,
     pos: u32,
 }
 
 const NO_SLOT: Slot = Slot {
+    t: f64::INFINITY,
     loc: ABSENT,
     pos: 0,
+};
+
+/// The inline part of a ring bucket: `idx[..len]`, in any order.
+#[derive(Clone, Copy, Debug)]
+#[repr(C, align(64))]
+struct Line {
+    len: u32,
+    idx: [u32; LINE_CAP],
+}
+
+const EMPTY_LINE: Line = Line {
+    len: 0,
+    idx: [0; LINE_CAP],
 };
 
 /// Calendar queue of `(time, index)` events; see the module docs.
@@ -71,10 +96,12 @@ pub struct CalendarQueue {
     slots: Vec<Slot>,
     /// Current bucket, in heap order.
     heap: Vec<Entry>,
-    /// Ring of `nb` (a power of two) unordered buckets.
-    ring: Vec<Vec<Entry>>,
-    /// Events in ring buckets.
+    /// Ring of `nb` (a power of two) buckets: inline lines, then spills.
+    lines: Vec<Line>,
+    spills: Vec<Vec<u32>>,
+    /// Events in ring buckets, and how many of them are in spills.
     ring_len: usize,
+    spill_len: usize,
     /// Finite events beyond the ring window (all of them while `staged`).
     overflow: Vec<Entry>,
     /// Lower bound on the bucket number of every overflow event.
@@ -84,7 +111,6 @@ pub struct CalendarQueue {
     /// Reused buffer for redistributing overflow events.
     scratch: Vec<Entry>,
     origin: f64,
-    width: f64,
     inv_width: f64,
     /// Cursor: the bucket number held by the heap.
     cur: u64,
@@ -94,7 +120,7 @@ pub struct CalendarQueue {
     stats: Stats,
 }
 
-/// Running counts since the last rebuild, used to judge the bucket width.
+/// Running counts over the current check period, to judge the bucket width.
 #[derive(Clone, Copy, Debug, Default)]
 struct Stats {
     /// `set` calls.
@@ -109,12 +135,11 @@ struct Stats {
 
 impl CalendarQueue {
     fn nb(&self) -> u64 {
-        self.ring.len() as u64
+        self.lines.len() as u64
     }
 
-    /// Bucket number of finite time `t`: monotone in `t`; times before the
-    /// origin map to 0 and times too far ahead to [`MAX_BUCKET`], so that
-    /// `cur + nb` never overflows.
+    /// Bucket number of time `t` (not NaN): monotone in `t`; times before
+    /// the origin map to 0 and times too far ahead to [`MAX_BUCKET`].
     #[inline(always)]
     fn bucket_of(&self, t: f64) -> u64 {
         ((t - self.origin) * self.inv_width).min(MAX_BUCKET) as u64
@@ -122,19 +147,18 @@ impl CalendarQueue {
 
     /// Places a new event for a particle that has none.
     #[inline]
-    fn insert(&mut self, e: Entry) {
-        let i = e.i as usize;
-        if e.t == f64::INFINITY {
-            self.slots[i] = Slot {
+    fn insert(&mut self, i: u32, t: f64) {
+        if t == f64::INFINITY {
+            self.slots[i as usize] = Slot {
+                t,
                 loc: INFINITE,
                 pos: self.infinite.len() as u32,
             };
-            self.infinite.push(e.i);
+            self.infinite.push(i);
         } else if self.staged {
-            self.push_overflow(e);
+            self.push_overflow(Entry { t, i });
         } else {
-            let a = self.bucket_of(e.t);
-            self.place(e, a);
+            self.place(Entry { t, i }, self.bucket_of(t));
         }
         self.len += 1;
     }
@@ -142,23 +166,28 @@ impl CalendarQueue {
     /// Puts finite event `e` with bucket number `a` where it belongs.
     #[inline]
     fn place(&mut self, e: Entry, a: u64) {
+        let nb = self.lines.len() as u64;
+        let slot = &mut self.slots[e.i as usize];
+        slot.t = e.t;
         if a <= self.cur {
             self.stats.heap_events += 1;
+            slot.loc = HEAP;
             let slots = &mut self.slots;
-            indexed_heap::push(&mut self.heap, e, |j, k| {
-                slots[j as usize] = Slot {
-                    loc: HEAP,
-                    pos: k as u32,
-                }
-            });
-        } else if a - self.cur < self.nb() {
-            let b = (a & (self.nb() - 1)) as usize;
-            let bucket = &mut self.ring[b];
-            self.slots[e.i as usize] = Slot {
-                loc: b as u32,
-                pos: bucket.len() as u32,
-            };
-            bucket.push(e);
+            indexed_heap::push(&mut self.heap, e, |j, k| slots[j as usize].pos = k as u32);
+        } else if a - self.cur < nb {
+            let b = (a & (nb - 1)) as usize;
+            slot.loc = b as u32;
+            let line = &mut self.lines[b];
+            if let Some(free) = line.idx.get_mut(line.len as usize) {
+                *free = e.i;
+                line.len += 1;
+                slot.pos = IN_LINE;
+            } else {
+                let spill = &mut self.spills[b];
+                slot.pos = spill.len() as u32;
+                spill.push(e.i);
+                self.spill_len += 1;
+            }
             self.ring_len += 1;
         } else {
             self.overflow_min = self.overflow_min.min(a);
@@ -168,6 +197,7 @@ impl CalendarQueue {
 
     fn push_overflow(&mut self, e: Entry) {
         self.slots[e.i as usize] = Slot {
+            t: e.t,
             loc: OVERFLOW,
             pos: self.overflow.len() as u32,
         };
@@ -187,16 +217,28 @@ impl CalendarQueue {
                     slots[j as usize].pos = k as u32
                 });
             }
-            OVERFLOW => swap_remove(&mut self.overflow, &mut self.slots, pos),
-            INFINITE => {
-                self.infinite.swap_remove(pos);
-                if let Some(&moved) = self.infinite.get(pos) {
-                    self.slots[moved as usize].pos = pos as u32;
+            OVERFLOW => {
+                self.overflow.swap_remove(pos);
+                if let Some(moved) = self.overflow.get(pos) {
+                    self.slots[moved.i as usize].pos = pos as u32;
                 }
             }
-            b => {
-                swap_remove(&mut self.ring[b as usize], &mut self.slots, pos);
+            INFINITE => swap_remove(&mut self.infinite, &mut self.slots, pos),
+            b if slot.pos == IN_LINE => {
+                let line = &mut self.lines[b as usize];
+                let n = line.len as usize;
+                let found = line.idx[..n].iter().position(|&j| j == i);
+                debug_assert!(found.is_some(), "slot says particle {i} is in line {b}");
+                if let Some(k) = found {
+                    line.idx[k] = line.idx[n - 1];
+                    line.len -= 1;
+                }
                 self.ring_len -= 1;
+            }
+            b => {
+                swap_remove(&mut self.spills[b as usize], &mut self.slots, pos);
+                self.ring_len -= 1;
+                self.spill_len -= 1;
             }
         }
         self.slots[i as usize] = NO_SLOT;
@@ -206,14 +248,14 @@ impl CalendarQueue {
     /// Refills the empty heap with the next bucket of events. Returns false
     /// if there is no finite event.
     fn advance(&mut self) -> bool {
-        if self.staged || self.ring_len == 0 || self.width_is_poor() {
+        if self.staged || self.ring_len == 0 {
             return self.rebuild();
         }
         let mask = self.nb() - 1;
         loop {
             // The ring holds an event in (cur, cur + nb), so this stops.
             let mut a = self.cur + 1;
-            while a < self.overflow_min && self.ring[(a & mask) as usize].is_empty() {
+            while a < self.overflow_min && self.bucket_is_empty((a & mask) as usize) {
                 a += 1;
             }
             self.stats.empties += (a - self.cur - 1) as usize;
@@ -232,67 +274,85 @@ impl CalendarQueue {
         }
     }
 
+    #[inline]
+    fn bucket_is_empty(&self, b: usize) -> bool {
+        self.lines[b].len == 0 && (self.spill_len == 0 || self.spills[b].is_empty())
+    }
+
+    /// Appends the events of ring bucket `b` to `out`, emptying the bucket.
+    fn drain_bucket(&mut self, b: usize, out: &mut Vec<Entry>) {
+        let line = &mut self.lines[b];
+        let n = line.len as usize;
+        line.len = 0;
+        let slots = &self.slots;
+        let entry = |&i: &u32| Entry {
+            t: slots[i as usize].t,
+            i,
+        };
+        out.extend(self.lines[b].idx[..n].iter().map(entry));
+        self.ring_len -= n;
+        if self.spill_len > 0 {
+            let spill = &mut self.spills[b];
+            out.extend(spill.iter().map(entry));
+            self.ring_len -= spill.len();
+            self.spill_len -= spill.len();
+            spill.clear();
+        }
+    }
+
     /// Makes ring bucket `b` (of bucket number `cur`) the current heap.
     fn load(&mut self, b: usize) {
-        std::mem::swap(&mut self.heap, &mut self.ring[b]);
-        self.ring_len -= self.heap.len();
+        let mut heap = std::mem::take(&mut self.heap);
+        self.drain_bucket(b, &mut heap);
         self.stats.loads += 1;
-        self.stats.heap_events += self.heap.len();
-        indexed_heap::heapify(&mut self.heap, |_, _| {});
-        for (k, e) in self.heap.iter().enumerate() {
-            self.slots[e.i as usize] = Slot {
-                loc: HEAP,
-                pos: k as u32,
-            };
+        self.stats.heap_events += heap.len();
+        indexed_heap::heapify(&mut heap, |_, _| {});
+        for (k, e) in heap.iter().enumerate() {
+            let slot = &mut self.slots[e.i as usize];
+            slot.loc = HEAP;
+            slot.pos = k as u32;
         }
+        self.heap = heap;
     }
 
     /// Moves overflow events now inside the ring window into the ring.
     fn redistribute(&mut self) {
-        eprintln!("REDIST {}", self.overflow.len());
         std::mem::swap(&mut self.overflow, &mut self.scratch);
         self.overflow_min = u64::MAX;
         for k in 0..self.scratch.len() {
             let e = self.scratch[k];
-            let a = self.bucket_of(e.t);
-            self.place(e, a);
+            self.place(e, self.bucket_of(e.t));
         }
         self.scratch.clear();
     }
 
-    /// True when the statistics since the last rebuild show buckets far too
-    /// narrow or too wide, and enough `set`s have passed to pay for a rebuild.
+    /// True when the statistics of the last check period show buckets far
+    /// too narrow or too wide.
     fn width_is_poor(&self) -> bool {
         let s = &self.stats;
-        if s.sets > 2 * self.len + 1024 && (s.empties > MAX_EMPTIES_PER_EVENT * s.heap_events) {
-            eprintln!("NARROW");
-        }
-        if s.sets > 2 * self.len + 1024 && (s.heap_events > MAX_EVENTS_PER_LOAD * s.loads.max(1)) {
-            eprintln!("WIDE");
-        }
-        s.sets > 2 * self.len + 1024
-            && (s.empties > MAX_EMPTIES_PER_EVENT * s.heap_events
-                || s.heap_events > MAX_EVENTS_PER_LOAD * s.loads.max(1))
+        s.empties > MAX_EMPTIES_PER_EVENT * s.heap_events
+            || s.heap_events > MAX_EVENTS_PER_LOAD * s.loads.max(1)
     }
 
     /// Gathers every finite event, re-tunes the width from them, restarts
     /// the calendar at the earliest one and loads its bucket into the heap.
     /// Returns false if there is no finite event.
     fn rebuild(&mut self) -> bool {
-        self.overflow.append(&mut self.heap);
-        if self.ring_len > 0 {
-            for bucket in &mut self.ring {
-                self.overflow.append(bucket);
+        let mut all = std::mem::take(&mut self.overflow);
+        all.append(&mut self.heap);
+        for b in 0..self.lines.len() {
+            if self.ring_len == 0 {
+                break;
             }
-            self.ring_len = 0;
+            self.drain_bucket(b, &mut all);
         }
+        self.overflow = all;
         self.staged = false;
         self.stats = Stats::default();
         let Some(first) = self.overflow.iter().map(|e| e.t).reduce(f64::min) else {
             return false;
         };
         if let Some(width) = self.estimate_width() {
-            self.width = width;
             self.inv_width = 1.0 / width;
         }
         self.origin = if first.is_finite() { first } else { 0.0 };
@@ -322,12 +382,12 @@ impl CalendarQueue {
     }
 }
 
-/// Removes `v[pos]` by swapping in the last entry, whose slot is updated.
+/// Removes `v[pos]` by swapping in the last index, whose slot is updated.
 #[inline]
-fn swap_remove(v: &mut Vec<Entry>, slots: &mut [Slot], pos: usize) {
+fn swap_remove(v: &mut Vec<u32>, slots: &mut [Slot], pos: usize) {
     v.swap_remove(pos);
-    if let Some(moved) = v.get(pos) {
-        slots[moved.i as usize].pos = pos as u32;
+    if let Some(&moved) = v.get(pos) {
+        slots[moved as usize].pos = pos as u32;
     }
 }
 
@@ -337,14 +397,15 @@ impl EventQueue for CalendarQueue {
         Self {
             slots: vec![NO_SLOT; n],
             heap: Vec::new(),
-            ring: vec![Vec::new(); nb],
+            lines: vec![EMPTY_LINE; nb],
+            spills: vec![Vec::new(); nb],
             ring_len: 0,
+            spill_len: 0,
             overflow: Vec::with_capacity(n),
             overflow_min: u64::MAX,
             infinite: Vec::new(),
             scratch: Vec::with_capacity(n),
             origin: 0.0,
-            width: 1.0,
             inv_width: 1.0,
             cur: 0,
             len: 0,
@@ -359,19 +420,35 @@ impl EventQueue for CalendarQueue {
             self.slots.resize(iu + 1, NO_SLOT);
         }
         self.stats.sets += 1;
-        if self.stats.sets % CHECK_EVERY == 0 && self.width_is_poor() {
-            self.rebuild();
+        if self.stats.sets > 2 * self.len + CHECK_MIN_SETS {
+            if self.width_is_poor() {
+                self.rebuild();
+            }
+            self.stats = Stats::default();
         }
         let slot = self.slots[iu];
-        if slot.loc == HEAP && !self.staged && t < f64::INFINITY && self.bucket_of(t) <= self.cur {
-            let slots = &mut self.slots;
-            indexed_heap::update_at(&mut self.heap, slot.pos as usize, t, |j, k| {
-                slots[j as usize].pos = k as u32
-            });
-            return;
+        if !self.staged && t < f64::INFINITY {
+            let a = self.bucket_of(t);
+            if slot.loc == HEAP && a <= self.cur {
+                self.slots[iu].t = t;
+                let slots = &mut self.slots;
+                indexed_heap::update_at(&mut self.heap, slot.pos as usize, t, |j, k| {
+                    slots[j as usize].pos = k as u32
+                });
+                return;
+            }
+            if slot.loc < self.nb() as u32
+                && a > self.cur
+                && a - self.cur < self.nb()
+                && (a & (self.nb() - 1)) as u32 == slot.loc
+            {
+                // Same ring bucket: only the time changes.
+                self.slots[iu].t = t;
+                return;
+            }
         }
         self.take(i);
-        self.insert(Entry { t, i });
+        self.insert(i, t);
     }
 
     fn remove(&mut self, i: u32) {
@@ -400,14 +477,90 @@ impl EventQueue for CalendarQueue {
             slots[i as usize] = NO_SLOT;
         }
         if self.ring_len > 0 {
-            for bucket in &mut self.ring {
-                for e in bucket.drain(..) {
-                    slots[e.i as usize] = NO_SLOT;
+            for line in &mut self.lines {
+                for &i in &line.idx[..line.len as usize] {
+                    slots[i as usize] = NO_SLOT;
+                }
+                line.len = 0;
+            }
+            if self.spill_len > 0 {
+                for spill in &mut self.spills {
+                    for i in spill.drain(..) {
+                        slots[i as usize] = NO_SLOT;
+                    }
                 }
             }
             self.ring_len = 0;
+            self.spill_len = 0;
         }
         self.len = 0;
         self.staged = true;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{RngExt, SeedableRng};
+    use rand_xoshiro::Xoshiro256PlusPlus;
+
+    /// Runs `steps` hold steps with rescheduling delays `Exp(mean)`.
+    fn hold(q: &mut CalendarQueue, rng: &mut Xoshiro256PlusPlus, n: u32, mean: f64, steps: usize) {
+        let exp = |rng: &mut Xoshiro256PlusPlus| -mean * (1.0 - rng.random::<f64>()).ln();
+        for _ in 0..steps {
+            let (t, i) = q.peek_min().expect("every particle has an event");
+            let a = exp(rng);
+            q.set(i, t + a);
+            let j = rng.random_range(0..n);
+            let b = exp(rng);
+            q.set(j, t + b);
+        }
+    }
+
+    /// The bucket width follows the event density when it changes by 10^±4
+    /// without a `clear`, and the cursor keeps few events per bucket.
+    #[test]
+    fn width_adapts_to_time_scale() {
+        let n = 2000u32;
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(11);
+        let mut q = CalendarQueue::with_capacity(n as usize);
+        for i in 0..n {
+            q.set(i, rng.random::<f64>());
+        }
+        hold(&mut q, &mut rng, n, 1.0, 20_000);
+        let base = 1.0 / q.inv_width;
+        for scale in [1e4, 1e-4, 1.0] {
+            hold(&mut q, &mut rng, n, scale, 40_000);
+            let ratio = 1.0 / q.inv_width / base / scale;
+            assert!(
+                (0.1..10.0).contains(&ratio),
+                "scale {scale}: width ratio {ratio}"
+            );
+        }
+        let s = q.stats;
+        assert!(s.heap_events <= 8 * s.loads.max(1), "{s:?}");
+        assert!(s.empties <= 4 * s.heap_events.max(1), "{s:?}");
+    }
+
+    /// After `clear` and a refill at a new time scale, the first `peek_min`
+    /// re-tunes the width.
+    #[test]
+    fn clear_and_refill_retunes() {
+        let n = 1000u32;
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(12);
+        let mut q = CalendarQueue::with_capacity(n as usize);
+        for scale in [1.0, 1e-6, 1e6] {
+            q.clear();
+            for i in 0..n {
+                q.set(i, scale * rng.random::<f64>());
+            }
+            q.peek_min();
+            // About EVENTS_PER_BUCKET events per bucket of width `scale / n`.
+            let ratio = 1.0 / q.inv_width / (EVENTS_PER_BUCKET * scale / f64::from(n));
+            assert!(
+                (0.5..2.0).contains(&ratio),
+                "scale {scale}: width ratio {ratio}"
+            );
+        }
     }
 }
