@@ -14,7 +14,7 @@ use rand_xoshiro::Xoshiro256PlusPlus;
 
 use crate::collision::ContactParams;
 use crate::domain::{AxisBoundary, Domain};
-use crate::engine::{Engine, EngineConfig};
+use crate::engine::{Engine, EngineConfig, NeighbourSearch};
 use crate::materials::MaterialTable;
 use crate::particles::NewParticle;
 use crate::queue::{CalendarQueue, EventQueue, IndexedHeap, QueueKind, ReferenceQueue};
@@ -36,6 +36,7 @@ pub struct BenchOptions {
     /// Neighbour-shell thickness δ in diameters.
     pub skin: f64,
     pub queue: QueueKind,
+    pub neighbours: NeighbourSearch,
     pub seed: u64,
 }
 
@@ -49,6 +50,7 @@ impl Default for BenchOptions {
             flow_step: None,
             skin: 0.2,
             queue: QueueKind::default(),
+            neighbours: NeighbourSearch::Lists,
             seed: 1,
         }
     }
@@ -60,6 +62,7 @@ pub struct BenchResult {
     pub n: usize,
     pub phi: f64,
     pub queue: QueueKind,
+    pub neighbours: NeighbourSearch,
     pub skin: f64,
     pub flow_step: Option<f64>,
     pub collisions: u64,
@@ -70,7 +73,7 @@ pub struct BenchResult {
     /// Carnahan–Starling β P σ³ at the same φ, for reference.
     pub pressure_carnahan_starling: f64,
     pub bytes_per_particle: usize,
-    pub shell_rebuilds_per_collision: f64,
+    pub neighbour_updates_per_collision: f64,
     pub stale_events_per_collision: f64,
     /// Relative change of the kinetic energy over the measurement.
     pub energy_drift: f64,
@@ -163,6 +166,7 @@ fn run_with<Q: EventQueue>(opts: &BenchOptions) -> BenchResult {
     let config = EngineConfig {
         skin: opts.skin,
         seed: opts.seed,
+        neighbours: opts.neighbours,
         ..Default::default()
     };
     let materials =
@@ -204,6 +208,7 @@ fn run_with<Q: EventQueue>(opts: &BenchOptions) -> BenchResult {
         n,
         phi: opts.phi,
         queue: opts.queue,
+        neighbours: opts.neighbours,
         skin: engine.skin(),
         flow_step: opts.flow_step,
         collisions,
@@ -212,8 +217,8 @@ fn run_with<Q: EventQueue>(opts: &BenchOptions) -> BenchResult {
         pressure_reduced: rho * z,
         pressure_carnahan_starling: rho * carnahan_starling_z(opts.phi),
         bytes_per_particle: engine.bytes_per_particle(),
-        shell_rebuilds_per_collision: (engine.counters.shell_rebuilds - start.shell_rebuilds)
-            as f64
+        neighbour_updates_per_collision: (engine.counters.neighbour_updates
+            - start.neighbour_updates) as f64
             / collisions as f64,
         stale_events_per_collision: (engine.counters.stale_events - start.stale_events) as f64
             / collisions as f64,

@@ -43,6 +43,22 @@ pub struct EngineConfig {
     pub inlet: Option<InletZone>,
     /// Seed of the engine's own random stream (insertion positions).
     pub seed: u64,
+    /// How collision partners are found.
+    pub neighbours: NeighbourSearch,
+}
+
+/// How the engine bounds the search for collision partners.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum NeighbourSearch {
+    /// Per-particle neighbour lists inside shells of thickness `skin`, with
+    /// list-expiry events: fastest for moderate and dense systems.
+    #[default]
+    Lists,
+    /// No lists: partners are the particles of the 27 cells around a
+    /// particle's cell (width ≥ the largest diameter), with cell-crossing
+    /// events: fastest for dilute systems, where lists mostly hold nothing.
+    Cells,
 }
 
 impl Default for EngineConfig {
@@ -54,6 +70,7 @@ impl Default for EngineConfig {
             record_collisions: false,
             inlet: None,
             seed: 0,
+            neighbours: NeighbourSearch::Lists,
         }
     }
 }
@@ -120,7 +137,8 @@ pub struct CollapseReport {
 pub struct Counters {
     pub pair_collisions: u64,
     pub wall_collisions: u64,
-    pub shell_rebuilds: u64,
+    /// Neighbour-shell rebuilds (lists) or cell crossings (cells).
+    pub neighbour_updates: u64,
     pub stale_events: u64,
     pub removed: u64,
     pub inserted: u64,
@@ -176,7 +194,10 @@ enum EventKind {
     Pair,
     Wall,
     Outlet,
+    /// Lists mode: the particle leaves its neighbour shell.
     ShellExit,
+    /// Cells mode: the particle crosses `face` of its cell.
+    CellCrossing,
 }
 
 /// A particle's pending event. For pairs, `partner` is a packed list entry
@@ -222,8 +243,11 @@ pub struct Engine<Q: EventQueue> {
     counter: Vec<u32>,
     scheduled: Vec<Scheduled>,
     shells: Vec<Shell>,
-    /// Bit `f` set when the shell reaches face `f` (wall or outlet).
+    /// Bit `f` set when the shell (lists mode) or cell (cells mode) reaches
+    /// domain face `f` (wall or outlet).
     face_mask: Vec<u8>,
+    /// Cells mode: the cell each particle is in.
+    cell_of: Vec<[usize; 3]>,
     last_collision: Vec<f64>,
     step_collisions: Vec<u32>,
     free_slots: Vec<u32>,
@@ -305,7 +329,12 @@ impl<Q: EventQueue> Engine<Q> {
                 config.skin = config.skin.min(limit);
             }
         }
-        let reach = 2.0 * (r_max + config.skin);
+        // Cell width: any two shells that overlap (lists), or any two
+        // particles in contact (cells), must be in neighbouring cells.
+        let cell_width = match config.neighbours {
+            NeighbourSearch::Lists => 2.0 * (r_max + config.skin),
+            NeighbourSearch::Cells => 2.0 * r_max,
+        };
         let periodic = domain.axes.map(|a| a == AxisBoundary::Periodic);
         let mut image_shift = [DVec3::ZERO; 27];
         for (code, s) in image_shift.iter_mut().enumerate() {
@@ -314,7 +343,7 @@ impl<Q: EventQueue> Engine<Q> {
         let rough = !materials.all_smooth();
         let n = particles.len();
         let mut engine = Engine {
-            cells: CellGrid::new(domain.lo, domain.hi, reach, periodic, n),
+            cells: CellGrid::new(domain.lo, domain.hi, cell_width, periodic, n),
             domain,
             materials,
             r_max,
@@ -331,6 +360,7 @@ impl<Q: EventQueue> Engine<Q> {
             scheduled: Vec::with_capacity(n),
             shells: Vec::with_capacity(n),
             face_mask: Vec::with_capacity(n),
+            cell_of: Vec::with_capacity(n),
             last_collision: Vec::with_capacity(n),
             step_collisions: Vec::with_capacity(n),
             free_slots: Vec::new(),
@@ -348,33 +378,39 @@ impl<Q: EventQueue> Engine<Q> {
             records: Vec::new(),
             collapse_reports: Vec::new(),
         };
+        if engine.config.neighbours == NeighbourSearch::Cells {
+            let dims = engine.cells.dims();
+            if (0..3).any(|axis| periodic[axis] && dims[axis] < 3) {
+                return Err(EngineError::Config(
+                    "cell search needs at least 3 cells (3 largest diameters) along every periodic axis; use lists"
+                        .into(),
+                ));
+            }
+        }
         for (index, p) in particles.iter().enumerate() {
             engine.check_particle(index, p)?;
             let slot = engine.allocate_slot(p);
-            engine.cells.place(slot, p.pos, engine.shells[slot].reach);
-            engine.shells[slot].centre = p.pos;
+            engine.enter_grid(slot);
         }
-        // Build all lists from the cell grid, then check for overlaps.
+        // Overlap check against every particle in the neighbouring cells.
         for i in 0..engine.kin.len() {
-            engine.rebuild_list(i);
-        }
-        for i in 0..engine.kin.len() {
-            for &e in engine.lists.list(i) {
-                let (j, code) = neighbours::unpack(e);
-                let j = j as usize;
-                if j < i {
-                    continue;
+            let (pi, ri) = (engine.kin[i].pos, engine.kin[i].radius);
+            let mut worst: Option<(usize, f64)> = None;
+            engine.cells.for_each_near(pi, |e, image| {
+                let j = e.index as usize;
+                if j <= i {
+                    return;
                 }
-                let d = engine.kin[i].pos - engine.kin[j].pos - engine.image_shift[code as usize];
-                let sigma = engine.kin[i].radius + engine.kin[j].radius;
-                let overlap = sigma - d.length();
-                if overlap > 1e-10 * sigma {
-                    return Err(EngineError::Overlap {
-                        a: i,
-                        b: j,
-                        overlap,
-                    });
+                let d = engine.kin[j].pos - pi;
+                let code = image.unwrap_or_else(|| engine.domain.image_code(d));
+                let sigma = ri + engine.kin[j].radius;
+                let overlap = sigma - (d + engine.image_shift[code as usize]).length();
+                if overlap > 1e-10 * sigma && worst.is_none_or(|w| overlap > w.1) {
+                    worst = Some((j, overlap));
                 }
+            });
+            if let Some((b, overlap)) = worst {
+                return Err(EngineError::Overlap { a: i, b, overlap });
             }
         }
         Ok(engine)
@@ -447,6 +483,7 @@ impl<Q: EventQueue> Engine<Q> {
                 reach: p.radius + self.config.skin,
             };
             self.face_mask[s] = 0;
+            self.cell_of[s] = [0; 3];
             self.last_collision[s] = f64::NEG_INFINITY;
             self.step_collisions[s] = 0;
             return s;
@@ -464,6 +501,7 @@ impl<Q: EventQueue> Engine<Q> {
             reach: p.radius + self.config.skin,
         });
         self.face_mask.push(0);
+        self.cell_of.push([0; 3]);
         self.last_collision.push(f64::NEG_INFINITY);
         self.step_collisions.push(0);
         let slots = self.kin.len();
@@ -491,6 +529,11 @@ impl<Q: EventQueue> Engine<Q> {
     /// periodic boxes.
     pub fn skin(&self) -> f64 {
         self.config.skin
+    }
+
+    /// How collision partners are found.
+    pub fn neighbour_search(&self) -> NeighbourSearch {
+        self.config.neighbours
     }
 
     /// Number of slots (active or free).
@@ -571,7 +614,9 @@ impl<Q: EventQueue> Engine<Q> {
 
     /// Processes queue entries until one collision happens before
     /// `self.time() + horizon`; returns it. Internal events (list expiry,
-    /// stale predictions) are processed silently. Recording must be enabled.
+    /// stale predictions) are processed silently. Without a collision the
+    /// clock ends at `self.time() + horizon`, as after [`Engine::advance`].
+    /// Recording must be enabled.
     pub fn next_collision(&mut self, horizon: f64) -> Option<CollisionRecord> {
         let end = self.now + horizon;
         self.ensure_predicted();
@@ -586,6 +631,7 @@ impl<Q: EventQueue> Engine<Q> {
                 return self.records.pop();
             }
         }
+        self.now = end;
         None
     }
 
@@ -686,9 +732,13 @@ impl<Q: EventQueue> Engine<Q> {
     /// must be synchronised to `now`.
     fn predict(&mut self, i: usize) {
         let ki = self.kin[i];
-        let mut best =
-            geometry::shell_exit_time(ki.pos - self.shells[i].centre, ki.vel, self.config.skin);
-        let mut event = SHELL_EXIT;
+        let (mut best, mut event) = match self.config.neighbours {
+            NeighbourSearch::Lists => (
+                geometry::shell_exit_time(ki.pos - self.shells[i].centre, ki.vel, self.config.skin),
+                SHELL_EXIT,
+            ),
+            NeighbourSearch::Cells => self.cell_exit(i),
+        };
         let mut mask = self.face_mask[i];
         while mask != 0 {
             let face = mask.trailing_zeros() as u8;
@@ -719,9 +769,9 @@ impl<Q: EventQueue> Engine<Q> {
         }
         let now = self.now;
         let mut best_entry = None;
-        for &entry in self.lists.list(i) {
+        let mut consider = |entry: u32, kin: &[Kinematics]| {
             let (j, code) = neighbours::unpack(entry);
-            let kj = &self.kin[j as usize];
+            let kj = &kin[j as usize];
             let pj = kj.position_at(now) + self.image_shift[code as usize];
             let t = geometry::pair_contact_time_eager(
                 ki.pos - pj,
@@ -731,6 +781,24 @@ impl<Q: EventQueue> Engine<Q> {
             if t < best {
                 best = t;
                 best_entry = Some(entry);
+            }
+        };
+        match self.config.neighbours {
+            NeighbourSearch::Lists => {
+                for &entry in self.lists.list(i) {
+                    consider(entry, &self.kin);
+                }
+            }
+            NeighbourSearch::Cells => {
+                // At least 3 cells per periodic axis: images are exact.
+                self.cells.for_each_near_cell(self.cell_of[i], |e, image| {
+                    if e.index as usize != i {
+                        consider(
+                            neighbours::pack(e.index, image.unwrap_or(IDENTITY_IMAGE)),
+                            &self.kin,
+                        );
+                    }
+                });
             }
         }
         if let Some(entry) = best_entry {
@@ -761,9 +829,10 @@ impl<Q: EventQueue> Engine<Q> {
             }
             EventKind::Wall => self.collide_wall(i, event.face),
             EventKind::Outlet => self.leave_through_outlet(i),
+            EventKind::CellCrossing => self.cross_cell(i, event.face),
             EventKind::ShellExit => {
                 self.sync(i);
-                self.counters.shell_rebuilds += 1;
+                self.counters.neighbour_updates += 1;
                 self.rebuild_list(i);
                 self.predict(i);
             }
@@ -880,6 +949,103 @@ impl<Q: EventQueue> Engine<Q> {
                 dissipated: loss,
             });
         }
+        self.predict(i);
+    }
+
+    /// Puts a new particle into the neighbour structure.
+    fn enter_grid(&mut self, i: usize) {
+        match self.config.neighbours {
+            NeighbourSearch::Lists => self.rebuild_list(i),
+            NeighbourSearch::Cells => {
+                let c = self.cells.coords(self.kin[i].pos);
+                self.move_to_cell(i, c);
+            }
+        }
+    }
+
+    /// Cells mode: records particle i in cell `c` and which domain faces
+    /// that cell touches.
+    fn move_to_cell(&mut self, i: usize, c: [usize; 3]) {
+        self.cell_of[i] = c;
+        self.cells
+            .place_in(i, c, self.kin[i].pos, self.kin[i].radius);
+        let dims = self.cells.dims();
+        let mut mask = 0u8;
+        for axis in 0..3 {
+            if self.domain.axes[axis] != AxisBoundary::Walls {
+                continue;
+            }
+            if c[axis] == 0 {
+                mask |= 1 << (2 * axis);
+            }
+            if c[axis] + 1 == dims[axis] {
+                mask |= 1 << (2 * axis + 1);
+            }
+        }
+        self.face_mask[i] = mask;
+    }
+
+    /// Cells mode: delay until particle i's centre leaves its cell, and the
+    /// face it leaves through. Domain faces that are walls or the outlet
+    /// are not cell faces (their own events handle them).
+    fn cell_exit(&self, i: usize) -> (f64, Scheduled) {
+        let k = &self.kin[i];
+        let c = self.cell_of[i];
+        let dims = self.cells.dims();
+        let lo = self.cells.cell_lo(c);
+        let width = self.cells.width();
+        let mut best = f64::INFINITY;
+        let mut face = 0;
+        for axis in 0..3 {
+            let v = k.vel[axis];
+            let periodic = self.domain.axes[axis] == AxisBoundary::Periodic;
+            let t = if v > 0.0 && (periodic || c[axis] + 1 < dims[axis]) {
+                (lo[axis] + width[axis] - k.pos[axis]) / v
+            } else if v < 0.0 && (periodic || c[axis] > 0) {
+                (lo[axis] - k.pos[axis]) / v
+            } else {
+                continue;
+            };
+            if t < best {
+                best = t;
+                face = (2 * axis + usize::from(v > 0.0)) as Face;
+            }
+        }
+        let event = Scheduled {
+            kind: EventKind::CellCrossing,
+            face,
+            partner: 0,
+            partner_count: 0,
+        };
+        (best.max(0.0), event)
+    }
+
+    /// Cells mode: moves particle i through `face` of its cell into the
+    /// next one, wrapping around periodic axes.
+    fn cross_cell(&mut self, i: usize, face: Face) {
+        self.sync(i);
+        let axis = (face / 2) as usize;
+        let n = self.cells.dims()[axis];
+        let mut c = self.cell_of[i];
+        let size = self.domain.size()[axis];
+        if face % 2 == 1 {
+            if c[axis] + 1 == n {
+                c[axis] = 0;
+                self.kin[i].pos[axis] -= size;
+                // Image codes held by others refer to the old coordinates.
+                self.counter[i] = self.counter[i].wrapping_add(1);
+            } else {
+                c[axis] += 1;
+            }
+        } else if c[axis] == 0 {
+            c[axis] = n - 1;
+            self.kin[i].pos[axis] += size;
+            self.counter[i] = self.counter[i].wrapping_add(1);
+        } else {
+            c[axis] -= 1;
+        }
+        self.counters.neighbour_updates += 1;
+        self.move_to_cell(i, c);
         self.predict(i);
     }
 
@@ -1065,7 +1231,7 @@ impl<Q: EventQueue> Engine<Q> {
             return false;
         }
         let slot = self.allocate_slot(&p);
-        self.rebuild_list(slot);
+        self.enter_grid(slot);
         if !self.needs_prediction {
             self.predict(slot);
         }
@@ -1096,25 +1262,5 @@ impl<Q: EventQueue> Engine<Q> {
             }
         }
         p
-    }
-
-    /// Smallest gap between any two particles in a neighbour list, relative
-    /// to their diameter sum; negative means overlap. For tests and checks.
-    pub fn min_relative_gap(&self) -> f64 {
-        let mut min = f64::INFINITY;
-        for i in 0..self.kin.len() {
-            if !self.active[i] {
-                continue;
-            }
-            let pi = self.kin[i].position_at(self.now);
-            for &e in self.lists.list(i) {
-                let (j, code) = neighbours::unpack(e);
-                let kj = &self.kin[j as usize];
-                let d = pi - kj.position_at(self.now) - self.image_shift[code as usize];
-                let sigma = self.kin[i].radius + kj.radius;
-                min = min.min(d.length() / sigma - 1.0);
-            }
-        }
-        min
     }
 }

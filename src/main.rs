@@ -5,6 +5,7 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 use edpm::bench::{self, BenchOptions};
+use edpm::engine::NeighbourSearch;
 use edpm::queue::QueueKind;
 
 #[derive(Parser)]
@@ -58,11 +59,20 @@ enum Command {
         /// Neighbour-shell thickness in diameters.
         #[arg(long, default_value_t = 0.2)]
         skin: f64,
-        #[arg(long, value_enum, default_value = "indexed-heap")]
+        #[arg(long, value_enum, default_value = "calendar")]
         queue: QueueArg,
+        /// Neighbour search: per-particle lists or cells.
+        #[arg(long, value_enum, default_value = "lists")]
+        neighbours: NeighbourArg,
         #[arg(long, default_value_t = 1)]
         seed: u64,
     },
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum NeighbourArg {
+    Lists,
+    Cells,
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -100,6 +110,7 @@ fn main() -> ExitCode {
             flow_step,
             skin,
             queue,
+            neighbours,
             seed,
         } => {
             let checks = [
@@ -126,6 +137,10 @@ fn main() -> ExitCode {
                         flow_step,
                         skin,
                         queue: queue.into(),
+                        neighbours: match neighbours {
+                            NeighbourArg::Lists => NeighbourSearch::Lists,
+                            NeighbourArg::Cells => NeighbourSearch::Cells,
+                        },
                         seed,
                     };
                     let r = bench::run(&opts);

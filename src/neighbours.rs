@@ -167,8 +167,33 @@ impl CellGrid {
         self.position.resize(slots, (NONE, 0));
     }
 
+    /// Cells per axis.
+    pub fn dims(&self) -> [usize; 3] {
+        self.cells
+    }
+
+    /// Lower corner of cell `c` (m).
+    pub fn cell_lo(&self, c: [usize; 3]) -> DVec3 {
+        let mut lo = self.lo;
+        for axis in 0..3 {
+            if self.inverse_width[axis] > 0.0 {
+                lo[axis] += c[axis] as f64 / self.inverse_width[axis];
+            }
+        }
+        lo
+    }
+
+    /// Cell width per axis (m; 0 on a flat axis).
+    pub fn width(&self) -> DVec3 {
+        DVec3::from_array(
+            self.inverse_width
+                .to_array()
+                .map(|w| if w > 0.0 { 1.0 / w } else { 0.0 }),
+        )
+    }
+
     /// Cell coordinates of a point, clamped into the grid.
-    fn coords(&self, p: DVec3) -> [usize; 3] {
+    pub fn coords(&self, p: DVec3) -> [usize; 3] {
         let mut c = [0usize; 3];
         for axis in 0..3 {
             // `as usize` truncates, which is floor for the non-negative
@@ -186,8 +211,14 @@ impl CellGrid {
     /// Puts particle `i` with shell `centre` and radius `reach` into the
     /// cell containing `centre`, removing it from any cell it was in.
     pub fn place(&mut self, i: usize, centre: DVec3, reach: f64) {
+        self.place_in(i, self.coords(centre), centre, reach);
+    }
+
+    /// As [`CellGrid::place`], into the given cell whatever `centre` says
+    /// (a particle that just crossed a face may sit a round-off outside).
+    pub fn place_in(&mut self, i: usize, c: [usize; 3], centre: DVec3, reach: f64) {
         self.remove(i);
-        let cell = self.flat(self.coords(centre));
+        let cell = self.flat(c);
         if self.len[cell] as usize == self.stride {
             self.grow();
         }
@@ -250,8 +281,12 @@ impl CellGrid {
     /// shift that brings the entry next to `p`, known from the wrap of the
     /// cell index; it is `None` when an axis has fewer than three cells and
     /// the caller must find the image from the displacement.
-    pub fn for_each_near(&self, p: DVec3, mut f: impl FnMut(&CellEntry, Option<u32>)) {
-        let c = self.coords(p);
+    pub fn for_each_near(&self, p: DVec3, f: impl FnMut(&CellEntry, Option<u32>)) {
+        self.for_each_near_cell(self.coords(p), f);
+    }
+
+    /// As [`CellGrid::for_each_near`], around cell `c`.
+    pub fn for_each_near_cell(&self, c: [usize; 3], mut f: impl FnMut(&CellEntry, Option<u32>)) {
         // Per axis: (cell index, image component 0/1/2 for shift -L/0/+L).
         let mut ranges = [[(0usize, 1u32); 3]; 3];
         let mut counts = [0usize; 3];

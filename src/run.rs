@@ -18,12 +18,12 @@ use rand_xoshiro::Xoshiro256PlusPlus;
 
 use crate::collision::ContactParams;
 use crate::domain::{Domain, OutletMode};
-use crate::engine::{CollapseReport, Counters, Engine, EngineConfig, InletZone};
+use crate::engine::{CollapseReport, Counters, Engine, EngineConfig, InletZone, NeighbourSearch};
 use crate::materials::MaterialTable;
 use crate::output::{CHECKPOINT_VERSION, Checkpoint, CsvTable, write_atomic};
 use crate::particles::NewParticle;
 use crate::queue::{CalendarQueue, EventQueue, IndexedHeap, QueueKind, ReferenceQueue};
-use crate::scenario::{Scenario, Splitting};
+use crate::scenario::{NeighbourChoice, Scenario, Splitting};
 
 /// Entry point of `edpm run`.
 pub fn run_cli(
@@ -73,6 +73,7 @@ pub struct Summary {
     pub dt_flow: f64,
     pub flow_steps: u64,
     pub queue: QueueKind,
+    pub neighbours: NeighbourSearch,
     /// Neighbour-shell thickness used (m).
     pub skin: f64,
     pub rotation_tracked: bool,
@@ -169,6 +170,7 @@ pub fn build_engine<Q: EventQueue>(s: &Scenario) -> anyhow::Result<Engine<Q>> {
         record_collisions: false,
         inlet,
         seed: s.seed ^ 0x9e37_79b9_7f4a_7c15,
+        neighbours: neighbour_search(s, &particles, r_max),
     };
     Engine::with_capacity_for_radius(
         engine_domain(s),
@@ -178,6 +180,38 @@ pub fn build_engine<Q: EventQueue>(s: &Scenario) -> anyhow::Result<Engine<Q>> {
         &particles,
     )
     .with_context(|| format!("{}: building the initial state", s.name))
+}
+
+/// The neighbour search for a scenario: as chosen, or for `auto` cells when
+/// the initial solids fraction is below 0.2 without gravity, or below 0.02
+/// with gravity (which gathers dilute particles into dense beds, where
+/// lists are 2x faster: measured on scenarios/box-walls.toml), and every
+/// periodic axis spans at least three cells. See results/benchmarks.md.
+fn neighbour_search(s: &Scenario, particles: &[NewParticle], r_max: f64) -> NeighbourSearch {
+    match s.engine.neighbours {
+        NeighbourChoice::Lists => NeighbourSearch::Lists,
+        NeighbourChoice::Cells => NeighbourSearch::Cells,
+        NeighbourChoice::Auto => {
+            let solids: f64 = particles
+                .iter()
+                .map(|p| 4.0 / 3.0 * std::f64::consts::PI * p.radius.powi(3))
+                .sum();
+            let fraction = solids / s.domain.volume();
+            let size = s.domain.extent();
+            let cells_fit =
+                (0..3).all(|a| !s.boundaries.is_periodic(a) || size[a] >= 3.0 * 2.0 * r_max);
+            let threshold = if s.domain.gravity == DVec3::ZERO {
+                0.2
+            } else {
+                0.02
+            };
+            if fraction < threshold && cells_fit {
+                NeighbourSearch::Cells
+            } else {
+                NeighbourSearch::Lists
+            }
+        }
+    }
 }
 
 /// Feeds the inlet's solids mass flux: draws particle sizes from the inlet
@@ -344,6 +378,7 @@ fn simulate<Q: EventQueue>(
         dt_flow: dt,
         flow_steps: steps,
         queue: s.engine.queue,
+        neighbours: engine.neighbour_search(),
         skin: engine.skin(),
         rotation_tracked: engine.is_rough(),
         particles_initial,

@@ -9,7 +9,7 @@
 
 use edpm::collision::ContactParams;
 use edpm::domain::{AxisBoundary, Domain};
-use edpm::engine::{Engine, EngineConfig, Partner};
+use edpm::engine::{Engine, EngineConfig, NeighbourSearch, Partner};
 use edpm::materials::MaterialTable;
 use edpm::particles::NewParticle;
 use edpm::queue::{CalendarQueue, EventQueue, IndexedHeap, ReferenceQueue};
@@ -215,7 +215,12 @@ fn check_state(engine: &Engine<impl EventQueue>, case: &Case, shifts: &[DVec3]) 
     (worst, inside)
 }
 
-fn run_case<Q: EventQueue>(case: &Case, seed: u64, collisions: usize) -> Vec<(f64, Partner, u32)> {
+fn run_case<Q: EventQueue>(
+    case: &Case,
+    seed: u64,
+    collisions: usize,
+    neighbours: NeighbourSearch,
+) -> Vec<(f64, Partner, u32)> {
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
     let particles = random_particles(case, &mut rng);
     let domain = Domain {
@@ -227,6 +232,7 @@ fn run_case<Q: EventQueue>(case: &Case, seed: u64, collisions: usize) -> Vec<(f6
     let config = EngineConfig {
         skin: 0.2 * case.radius.1,
         record_collisions: true,
+        neighbours,
         ..Default::default()
     };
     let mut engine: Engine<Q> = Engine::new(
@@ -377,17 +383,20 @@ fn cases() -> Vec<Case> {
 #[test]
 fn engine_matches_brute_force_for_ten_thousand_collisions() {
     for (k, case) in cases().iter().enumerate() {
-        let seq = run_case::<IndexedHeap>(case, 100 + k as u64, 10_000);
-        assert_eq!(seq.len(), 10_000);
+        for mode in [NeighbourSearch::Lists, NeighbourSearch::Cells] {
+            let seq = run_case::<IndexedHeap>(case, 100 + k as u64, 10_000, mode);
+            assert_eq!(seq.len(), 10_000);
+        }
     }
 }
 
 #[test]
 fn every_queue_gives_the_identical_event_sequence() {
     for (k, case) in cases().iter().enumerate() {
-        let heap = run_case::<IndexedHeap>(case, 7 + k as u64, 2_000);
-        let reference = run_case::<ReferenceQueue>(case, 7 + k as u64, 2_000);
-        let calendar = run_case::<CalendarQueue>(case, 7 + k as u64, 2_000);
+        let lists = NeighbourSearch::Lists;
+        let heap = run_case::<IndexedHeap>(case, 7 + k as u64, 2_000, lists);
+        let reference = run_case::<ReferenceQueue>(case, 7 + k as u64, 2_000, lists);
+        let calendar = run_case::<CalendarQueue>(case, 7 + k as u64, 2_000, lists);
         assert!(heap == reference, "{}: reference queue differs", case.name);
         assert!(heap == calendar, "{}: calendar queue differs", case.name);
     }

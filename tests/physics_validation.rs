@@ -26,6 +26,7 @@ fn pressure_at(phi: f64) -> bench::BenchResult {
         flow_step: None,
         skin: 0.2,
         queue: QueueKind::IndexedHeap,
+        neighbours: Default::default(),
         seed: 11,
     })
 }
@@ -71,6 +72,7 @@ fn energy_drift_over_a_million_collisions_is_below_1e_10() {
         flow_step: Some(0.5),
         skin: 0.2,
         queue: QueueKind::IndexedHeap,
+        neighbours: Default::default(),
         seed: 3,
     });
     assert!(

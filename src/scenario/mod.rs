@@ -314,10 +314,22 @@ pub struct TimeSettings {
     pub splitting: Splitting,
 }
 
+/// `[engine] neighbours`: how collision partners are searched.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum NeighbourChoice {
+    /// Cells when the initial solids fraction is below 0.2 (0.02 with
+    /// gravity) and every periodic axis holds at least 3 cells, else lists.
+    Auto,
+    Lists,
+    Cells,
+}
+
 /// `[engine]`.
 #[derive(Clone, Debug, PartialEq)]
 pub struct EngineSettings {
     pub queue: crate::queue::QueueKind,
+    pub neighbours: NeighbourChoice,
     /// Neighbour-shell thickness as a fraction of the largest diameter,
     /// in (0, 2].
     pub skin: f64,

@@ -153,6 +153,7 @@ pub(super) struct RawTime {
 pub(super) struct RawEngine {
     pub queue: Option<crate::queue::QueueKind>,
     pub skin: Option<f64>,
+    pub neighbours: Option<super::NeighbourChoice>,
 }
 
 #[derive(Deserialize)]

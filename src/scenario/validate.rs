@@ -10,8 +10,8 @@ use super::diameter::{LOGNORMAL_MIN_MASS, lognormal_mass};
 use super::raw::{self, AxisName, RawAxis, RawDiameter, RawInt, RawScenario};
 use super::{
     AxisBoundary, Boundaries, CollisionSettings, ContactTable, Diameter, Domain, EngineSettings,
-    InitialState, Inlet, Material, Outlet, OutletMode, OutputSettings, Placement, Population,
-    Region, Scenario, ScenarioError, Splitting, TimeSettings, locate, overrides,
+    InitialState, Inlet, Material, NeighbourChoice, Outlet, OutletMode, OutputSettings, Placement,
+    Population, Region, Scenario, ScenarioError, Splitting, TimeSettings, locate, overrides,
 };
 use crate::collision::ContactParams;
 
@@ -27,7 +27,7 @@ pub(crate) const CAP_RANDOM_2D: f64 = 0.5;
 /// Hard limit on the number of particles per population.
 pub(crate) const MAX_PARTICLES: u64 = 50_000_000;
 
-const DEFAULT_SKIN: f64 = 0.1;
+const DEFAULT_SKIN: f64 = 0.2;
 const DEFAULT_MAX_COLLISIONS_PER_STEP: u64 = 1000;
 
 /// What errors need to know about their origin.
@@ -734,17 +734,18 @@ pub(crate) fn validate(ctx: &Ctx, raw: RawScenario) -> R<Scenario> {
     };
 
     // ---- engine
-    let (queue, skin) = match raw.engine {
-        Some(e) => (e.queue, e.skin),
-        None => (None, None),
+    let (queue, skin, neighbours) = match raw.engine {
+        Some(e) => (e.queue, e.skin, e.neighbours),
+        None => (None, None, None),
     };
     let skin = skin.unwrap_or(DEFAULT_SKIN);
     if !(skin > 0.0 && skin <= 2.0) {
         return Err(ctx.err("engine.skin", format!("must be in (0, 2], got {skin:?}")));
     }
     let engine = EngineSettings {
-        queue: queue.unwrap_or(crate::queue::QueueKind::IndexedHeap),
+        queue: queue.unwrap_or(crate::queue::QueueKind::Calendar),
         skin,
+        neighbours: neighbours.unwrap_or(NeighbourChoice::Auto),
     };
 
     // ---- output
