@@ -37,8 +37,9 @@ pub struct EngineConfig {
     /// Collisions per particle per flow step above which the particle is
     /// reported as a sign of inelastic collapse.
     pub max_collisions_per_step: u32,
-    /// Keep a [`CollisionRecord`] of every collision for the caller.
-    pub record_collisions: bool,
+    /// Keep a [`Record`] of every state change (collisions, wraps,
+    /// insertions, removals) in [`Engine::records`] for the caller to drain.
+    pub record_events: bool,
     /// Where re-inserted particles (outlet mode `Reinsert`) enter.
     pub inlet: Option<InletZone>,
     /// Seed of the engine's own random stream (insertion positions).
@@ -67,7 +68,7 @@ impl Default for EngineConfig {
             skin: 0.0,
             tc: 0.0,
             max_collisions_per_step: u32::MAX,
-            record_collisions: false,
+            record_events: false,
             inlet: None,
             seed: 0,
             neighbours: NeighbourSearch::Lists,
@@ -105,14 +106,31 @@ pub enum Partner {
     Wall(Face),
 }
 
-/// One processed collision, kept when `record_collisions` is set.
+/// A particle's kinematic state as the engine stores it.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct State {
+    /// Position (m) at the record's clock.
+    pub pos: DVec3,
+    /// Velocity (m/s).
+    pub vel: DVec3,
+    /// Angular velocity (rad/s).
+    pub omega: DVec3,
+}
+
+/// One processed collision.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct CollisionRecord {
     /// Absolute time (s).
     pub time: f64,
+    /// Engine clock: time since the start of the current flow step (s).
+    pub clock: f64,
     /// Slot of particle a.
     pub a: u32,
     pub b: Partner,
+    /// Persistent ids of a and b (b's is 0 for a wall).
+    pub ids: [u64; 2],
+    /// States of a and b right after the collision (b's unused for a wall).
+    pub after: [State; 2],
     /// Impulse on a (N s).
     pub impulse: DVec3,
     /// Unit normal from b to a.
@@ -120,6 +138,31 @@ pub struct CollisionRecord {
     pub kind: CollisionKind,
     /// Kinetic energy lost (J), ≥ 0 up to round-off.
     pub dissipated: f64,
+}
+
+/// A change of particle state, kept when `record_events` is set: together
+/// with flow-step ends and kicks, enough to replay a run exactly.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Record {
+    Collision(CollisionRecord),
+    /// A synchronised particle moved to another periodic image.
+    Wrap {
+        clock: f64,
+        id: u64,
+        pos: DVec3,
+    },
+    /// A particle entered (initial particles are not recorded).
+    Insert {
+        clock: f64,
+        id: u64,
+        particle: NewParticle,
+    },
+    /// A particle left; `state` is its state at `clock`.
+    Remove {
+        clock: f64,
+        id: u64,
+        state: State,
+    },
 }
 
 /// A particle that exceeded the per-step collision limit.
@@ -269,7 +312,7 @@ pub struct Engine<Q: EventQueue> {
     pending_reinsert: Vec<NewParticle>,
 
     pub counters: Counters,
-    pub records: Vec<CollisionRecord>,
+    pub records: Vec<Record>,
     pub collapse_reports: Vec<CollapseReport>,
 }
 
@@ -293,12 +336,6 @@ impl<Q: EventQueue> Engine<Q> {
             return Err(EngineError::TooManyParticles);
         }
         let mut r_max = particles.iter().map(|p| p.radius).fold(0.0, f64::max);
-        if let Some(inlet) = config.inlet {
-            // Reinserted particles keep their size, so r_max already covers them.
-            if !(inlet.height > 0.0) {
-                return Err(EngineError::Config("inlet height must be > 0".into()));
-            }
-        }
         if r_max == 0.0 {
             r_max = config.skin;
         }
@@ -314,6 +351,14 @@ impl<Q: EventQueue> Engine<Q> {
         r_max: f64,
         particles: &[NewParticle],
     ) -> Result<Self, EngineError> {
+        if let Some(inlet) = config.inlet
+            && (inlet.height.is_nan() || inlet.height <= 0.0)
+        {
+            return Err(EngineError::Config(format!(
+                "inlet height must be > 0 m, got {}",
+                inlet.height
+            )));
+        }
         let size = domain.size();
         // Minimum image requires every possible list partner to lie within
         // half a box length on periodic axes: 2 (R_max + δ) ≤ L/2.
@@ -430,9 +475,8 @@ impl<Q: EventQueue> Engine<Q> {
         if !(p.pos.is_finite() && p.vel.is_finite() && p.omega.is_finite()) {
             return bad("position and velocities must be finite".into());
         }
-        if p.material as usize >= self.materials.len()
-            || !(self.materials.density[p.material as usize] > 0.0)
-        {
+        let density = self.materials.density.get(p.material as usize);
+        if density.is_none_or(|&d| d.is_nan() || d <= 0.0) {
             return bad(format!("material {} has no density", p.material));
         }
         for axis in 0..3 {
@@ -620,15 +664,19 @@ impl<Q: EventQueue> Engine<Q> {
     pub fn next_collision(&mut self, horizon: f64) -> Option<CollisionRecord> {
         let end = self.now + horizon;
         self.ensure_predicted();
-        let before = self.records.len();
         while let Some((t, i)) = self.queue.peek_min() {
             if t >= end {
                 break;
             }
             self.now = t;
+            let before = self.records.len();
             self.process(i as usize);
-            if self.records.len() > before {
-                return self.records.pop();
+            let collision = self.records[before..].iter().find_map(|r| match r {
+                Record::Collision(c) => Some(*c),
+                _ => None,
+            });
+            if collision.is_some() {
+                return collision;
             }
         }
         self.now = end;
@@ -714,7 +762,6 @@ impl<Q: EventQueue> Engine<Q> {
         self.queue.clear();
         for i in 0..self.kin.len() {
             if self.active[i] {
-                self.sync(i);
                 self.predict(i);
             }
         }
@@ -728,16 +775,19 @@ impl<Q: EventQueue> Engine<Q> {
         k.time = self.now;
     }
 
-    /// Finds particle i's earliest event (Eq. 46) and queues it. Particle i
-    /// must be synchronised to `now`.
+    /// Finds particle i's earliest event (Eq. 46) and queues it. The
+    /// particle's stored state is not changed: its position now is
+    /// extrapolated, so only collisions, wraps and flow-step ends ever
+    /// rewrite positions (which keeps event logs replayable bit for bit).
     fn predict(&mut self, i: usize) {
-        let ki = self.kin[i];
+        let mut ki = self.kin[i];
+        ki.pos = ki.position_at(self.now);
         let (mut best, mut event) = match self.config.neighbours {
             NeighbourSearch::Lists => (
                 geometry::shell_exit_time(ki.pos - self.shells[i].centre, ki.vel, self.config.skin),
                 SHELL_EXIT,
             ),
-            NeighbourSearch::Cells => self.cell_exit(i),
+            NeighbourSearch::Cells => self.cell_exit(ki.pos, ki.vel, self.cell_of[i]),
         };
         let mut mask = self.face_mask[i];
         while mask != 0 {
@@ -745,7 +795,7 @@ impl<Q: EventQueue> Engine<Q> {
             mask &= mask - 1;
             let axis = (face / 2) as usize;
             let (x, v) = (ki.pos[axis], ki.vel[axis]);
-            let t = if face % 2 == 0 {
+            let t = if face.is_multiple_of(2) {
                 geometry::lower_wall_time(x, v, ki.radius, self.domain.lo[axis])
             } else if self.domain.has_wall(face) {
                 geometry::upper_wall_time(x, v, ki.radius, self.domain.hi[axis])
@@ -821,7 +871,6 @@ impl<Q: EventQueue> Engine<Q> {
                 let j = j as usize;
                 if self.counter[j] != event.partner_count {
                     self.counters.stale_events += 1;
-                    self.sync(i);
                     self.predict(i);
                 } else {
                     self.collide_pair(i, j, code);
@@ -831,7 +880,6 @@ impl<Q: EventQueue> Engine<Q> {
             EventKind::Outlet => self.leave_through_outlet(i),
             EventKind::CellCrossing => self.cross_cell(i, event.face),
             EventKind::ShellExit => {
-                self.sync(i);
                 self.counters.neighbour_updates += 1;
                 self.rebuild_list(i);
                 self.predict(i);
@@ -859,6 +907,14 @@ impl<Q: EventQueue> Engine<Q> {
         self.counter[i] = self.counter[i].wrapping_add(1);
         self.last_collision[i] = self.now;
         self.step_collisions[i] += 1;
+    }
+
+    fn state(&self, i: usize) -> State {
+        State {
+            pos: self.kin[i].pos,
+            vel: self.kin[i].vel,
+            omega: self.omega[i],
+        }
     }
 
     fn body(&self, i: usize) -> Body {
@@ -908,16 +964,19 @@ impl<Q: EventQueue> Engine<Q> {
         self.counters.dissipated_pair += dissipated;
         self.note_collision(i);
         self.note_collision(j);
-        if self.config.record_collisions {
-            self.records.push(CollisionRecord {
+        if self.config.record_events {
+            self.records.push(Record::Collision(CollisionRecord {
                 time: self.time(),
+                clock: self.now,
                 a: i as u32,
                 b: Partner::Particle(j as u32),
+                ids: [self.id[i], self.id[j]],
+                after: [self.state(i), self.state(j)],
                 impulse,
                 normal: n,
                 kind,
                 dissipated,
-            });
+            }));
         }
         self.predict(i);
         self.predict(j);
@@ -927,7 +986,7 @@ impl<Q: EventQueue> Engine<Q> {
         self.sync(i);
         let axis = (face / 2) as usize;
         let mut n = DVec3::ZERO;
-        n[axis] = if face % 2 == 0 { 1.0 } else { -1.0 };
+        n[axis] = if face.is_multiple_of(2) { 1.0 } else { -1.0 };
         let params = self.restitution(self.materials.wall(self.material[i]), i, None);
         let a = self.body(i);
         let (a2, _, imp) = collision::collide(n, &a, &Body::WALL, &params);
@@ -938,16 +997,19 @@ impl<Q: EventQueue> Engine<Q> {
         self.counters.dissipated_wall += loss;
         self.counters.wall_impulse[face as usize] -= imp.j;
         self.note_collision(i);
-        if self.config.record_collisions {
-            self.records.push(CollisionRecord {
+        if self.config.record_events {
+            self.records.push(Record::Collision(CollisionRecord {
                 time: self.time(),
+                clock: self.now,
                 a: i as u32,
                 b: Partner::Wall(face),
+                ids: [self.id[i], 0],
+                after: [self.state(i), State::default()],
                 impulse: imp.j,
                 normal: n,
                 kind: imp.kind,
                 dissipated: loss,
-            });
+            }));
         }
         self.predict(i);
     }
@@ -988,21 +1050,19 @@ impl<Q: EventQueue> Engine<Q> {
     /// Cells mode: delay until particle i's centre leaves its cell, and the
     /// face it leaves through. Domain faces that are walls or the outlet
     /// are not cell faces (their own events handle them).
-    fn cell_exit(&self, i: usize) -> (f64, Scheduled) {
-        let k = &self.kin[i];
-        let c = self.cell_of[i];
+    fn cell_exit(&self, pos: DVec3, vel: DVec3, c: [usize; 3]) -> (f64, Scheduled) {
         let dims = self.cells.dims();
         let lo = self.cells.cell_lo(c);
         let width = self.cells.width();
         let mut best = f64::INFINITY;
         let mut face = 0;
         for axis in 0..3 {
-            let v = k.vel[axis];
+            let v = vel[axis];
             let periodic = self.domain.axes[axis] == AxisBoundary::Periodic;
             let t = if v > 0.0 && (periodic || c[axis] + 1 < dims[axis]) {
-                (lo[axis] + width[axis] - k.pos[axis]) / v
+                (lo[axis] + width[axis] - pos[axis]) / v
             } else if v < 0.0 && (periodic || c[axis] > 0) {
-                (lo[axis] - k.pos[axis]) / v
+                (lo[axis] - pos[axis]) / v
             } else {
                 continue;
             };
@@ -1023,45 +1083,60 @@ impl<Q: EventQueue> Engine<Q> {
     /// Cells mode: moves particle i through `face` of its cell into the
     /// next one, wrapping around periodic axes.
     fn cross_cell(&mut self, i: usize, face: Face) {
-        self.sync(i);
         let axis = (face / 2) as usize;
         let n = self.cells.dims()[axis];
         let mut c = self.cell_of[i];
         let size = self.domain.size()[axis];
+        let mut shift = 0.0;
         if face % 2 == 1 {
             if c[axis] + 1 == n {
                 c[axis] = 0;
-                self.kin[i].pos[axis] -= size;
-                // Image codes held by others refer to the old coordinates.
-                self.counter[i] = self.counter[i].wrapping_add(1);
+                shift = -size;
             } else {
                 c[axis] += 1;
             }
         } else if c[axis] == 0 {
             c[axis] = n - 1;
-            self.kin[i].pos[axis] += size;
-            self.counter[i] = self.counter[i].wrapping_add(1);
+            shift = size;
         } else {
             c[axis] -= 1;
+        }
+        if shift != 0.0 {
+            self.sync(i);
+            let mut pos = self.kin[i].pos;
+            pos[axis] += shift;
+            self.set_wrapped_position(i, pos);
         }
         self.counters.neighbour_updates += 1;
         self.move_to_cell(i, c);
         self.predict(i);
     }
 
+    /// Moves a synchronised particle to its periodic image `pos`.
+    fn set_wrapped_position(&mut self, i: usize, pos: DVec3) {
+        self.kin[i].pos = pos;
+        // Others' predictions hold image codes relative to the old
+        // coordinates: mark them stale.
+        self.counter[i] = self.counter[i].wrapping_add(1);
+        if self.config.record_events {
+            self.records.push(Record::Wrap {
+                clock: self.now,
+                id: self.id[i],
+                pos,
+            });
+        }
+    }
+
     /// Rebuilds particle i's shell around its current position: wraps it
     /// into the box, drops it from its old neighbours' lists and links it
     /// with every particle whose shell overlaps the new one.
     fn rebuild_list(&mut self, i: usize) {
-        let pos = self.kin[i].pos;
-        let wrapped = self.domain.wrap(pos);
-        if wrapped != pos {
-            self.kin[i].pos = wrapped;
-            // Others' predictions hold image codes relative to the old
-            // coordinates: mark them stale.
-            self.counter[i] = self.counter[i].wrapping_add(1);
+        let pos = self.kin[i].position_at(self.now);
+        let centre = self.domain.wrap(pos);
+        if centre != pos {
+            self.sync(i);
+            self.set_wrapped_position(i, centre);
         }
-        let centre = wrapped;
         for k in 0..self.lists.list(i).len() {
             let (j, _) = neighbours::unpack(self.lists.list(i)[k]);
             self.lists.remove_index(j as usize, i as u32);
@@ -1128,6 +1203,13 @@ impl<Q: EventQueue> Engine<Q> {
         self.counter[i] = self.counter[i].wrapping_add(1);
         self.free_slots.push(i as u32);
         self.counters.removed += 1;
+        if self.config.record_events {
+            self.records.push(Record::Remove {
+                clock: self.now,
+                id: self.id[i],
+                state: self.state(i),
+            });
+        }
         let k = self.kin[i];
         NewParticle {
             pos: k.pos,
@@ -1140,11 +1222,9 @@ impl<Q: EventQueue> Engine<Q> {
 
     fn leave_through_outlet(&mut self, i: usize) {
         let p = self.remove(i);
-        if matches!(self.domain.outlet, Some(o) if o.mode == OutletMode::Reinsert) {
-            let inlet = self
-                .config
-                .inlet
-                .expect("reinserting outlet requires an inlet zone");
+        let reinsert = matches!(self.domain.outlet, Some(o) if o.mode == OutletMode::Reinsert);
+        // Without an inlet zone a reinserting outlet can only remove.
+        if let (true, Some(inlet)) = (reinsert, self.config.inlet) {
             let p = NewParticle {
                 vel: inlet.velocity,
                 omega: DVec3::ZERO,
@@ -1231,6 +1311,13 @@ impl<Q: EventQueue> Engine<Q> {
             return false;
         }
         let slot = self.allocate_slot(&p);
+        if self.config.record_events {
+            self.records.push(Record::Insert {
+                clock: self.now,
+                id: self.id[slot],
+                particle: p,
+            });
+        }
         self.enter_grid(slot);
         if !self.needs_prediction {
             self.predict(slot);

@@ -167,7 +167,7 @@ pub fn build_engine<Q: EventQueue>(s: &Scenario) -> anyhow::Result<Engine<Q>> {
         tc: s.collisions.tc,
         max_collisions_per_step: u32::try_from(s.collisions.max_collisions_per_step)
             .unwrap_or(u32::MAX),
-        record_collisions: false,
+        record_events: false,
         inlet,
         seed: s.seed ^ 0x9e37_79b9_7f4a_7c15,
         neighbours: neighbour_search(s, &particles, r_max),
@@ -343,7 +343,12 @@ fn simulate<Q: EventQueue>(
         }
         if let Some(bar) = &bar {
             bar.set_position(step + 1);
-            bar.set_message(format!("{t:.4} s, {} particles", engine.len()));
+            let events = engine.counters.pair_collisions + engine.counters.wall_collisions;
+            let rate = events as f64 / wall_start.elapsed().as_secs_f64().max(1e-9);
+            bar.set_message(format!(
+                "{t:.4} s, {} particles, {rate:.2e} collisions/s",
+                engine.len()
+            ));
         }
     }
     if let Some(bar) = bar {

@@ -231,7 +231,7 @@ fn run_case<Q: EventQueue>(
     };
     let config = EngineConfig {
         skin: 0.2 * case.radius.1,
-        record_collisions: true,
+        record_events: true,
         neighbours,
         ..Default::default()
     };
