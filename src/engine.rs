@@ -145,20 +145,24 @@ pub struct CollisionRecord {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Record {
     Collision(CollisionRecord),
-    /// A synchronised particle moved to another periodic image.
+    /// A synchronised particle moved to another periodic image; `state` is
+    /// its state there at `clock`.
     Wrap {
+        time: f64,
         clock: f64,
         id: u64,
-        pos: DVec3,
+        state: State,
     },
     /// A particle entered (initial particles are not recorded).
     Insert {
+        time: f64,
         clock: f64,
         id: u64,
         particle: NewParticle,
     },
     /// A particle left; `state` is its state at `clock`.
     Remove {
+        time: f64,
         clock: f64,
         id: u64,
         state: State,
@@ -556,6 +560,11 @@ impl<Q: EventQueue> Engine<Q> {
 
     // ----- queries -------------------------------------------------------
 
+    /// Engine clock: time since the start of the current flow step (s).
+    pub fn clock(&self) -> f64 {
+        self.now
+    }
+
     /// Absolute simulation time (s).
     pub fn time(&self) -> f64 {
         self.time_origin + (self.now + self.time_origin_error)
@@ -615,6 +624,28 @@ impl<Q: EventQueue> Engine<Q> {
             mass: 1.0 / self.inv_mass[slot],
             material: self.material[slot],
         })
+    }
+
+    /// Switches recording of state changes ([`Engine::records`]) on or off.
+    pub fn set_recording(&mut self, on: bool) {
+        self.config.record_events = on;
+    }
+
+    /// Every particle's stored state (not extrapolated, not wrapped), in
+    /// slot order: what checkpoints of event logs compare bit for bit.
+    /// Right after [`Engine::end_flow_step`] this is the state at `time()`.
+    pub fn stored_particles(&self) -> impl Iterator<Item = ParticleView> + '_ {
+        (0..self.kin.len())
+            .filter(|&i| self.active[i])
+            .map(|i| ParticleView {
+                id: self.id[i],
+                pos: self.kin[i].pos,
+                vel: self.kin[i].vel,
+                omega: self.omega[i],
+                radius: self.kin[i].radius,
+                mass: 1.0 / self.inv_mass[i],
+                material: self.material[i],
+            })
     }
 
     /// All particles at the current time, in slot order.
@@ -1120,9 +1151,10 @@ impl<Q: EventQueue> Engine<Q> {
         self.counter[i] = self.counter[i].wrapping_add(1);
         if self.config.record_events {
             self.records.push(Record::Wrap {
+                time: self.time(),
                 clock: self.now,
                 id: self.id[i],
-                pos,
+                state: self.state(i),
             });
         }
     }
@@ -1205,6 +1237,7 @@ impl<Q: EventQueue> Engine<Q> {
         self.counters.removed += 1;
         if self.config.record_events {
             self.records.push(Record::Remove {
+                time: self.time(),
                 clock: self.now,
                 id: self.id[i],
                 state: self.state(i),
@@ -1313,6 +1346,7 @@ impl<Q: EventQueue> Engine<Q> {
         let slot = self.allocate_slot(&p);
         if self.config.record_events {
             self.records.push(Record::Insert {
+                time: self.time(),
                 clock: self.now,
                 id: self.id[slot],
                 particle: p,

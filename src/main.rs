@@ -37,6 +37,31 @@ enum Command {
         /// No progress bar.
         #[arg(long)]
         quiet: bool,
+        /// Write a binary event log of every collision (docs/event-log.md).
+        #[arg(long, value_name = "FILE")]
+        log: Option<PathBuf>,
+        /// Full-state checkpoints in the log every this many flow steps
+        /// (default: 10 per run).
+        #[arg(long, value_name = "STEPS")]
+        log_checkpoint_steps: Option<u64>,
+    },
+    /// Rebuild a run from its event log alone.
+    Replay {
+        /// Event log written by `edpm run --log`.
+        log: PathBuf,
+        /// Write the state at this time (s) as CSV and VTK.
+        #[arg(long, value_name = "SECONDS")]
+        at: Option<f64>,
+        /// Compare the replay with every checkpoint in the log, bit for bit.
+        #[arg(long)]
+        verify: bool,
+        /// Collision statistics (frequency, impact angles and velocities,
+        /// dissipation), printed and written as JSON and CSV.
+        #[arg(long)]
+        stats: bool,
+        /// Output directory (default: the log's directory).
+        #[arg(long)]
+        out: Option<PathBuf>,
     },
     /// Elastic smooth spheres in a periodic cube; prints one JSON line.
     Bench {
@@ -101,7 +126,31 @@ fn main() -> ExitCode {
             t_end,
             overrides,
             quiet,
-        } => edpm::run::run_cli(&scenario, out.as_deref(), t_end, &overrides, !quiet),
+            log,
+            log_checkpoint_steps,
+        } => {
+            let opts = edpm::run::RunOptions {
+                progress: !quiet,
+                log,
+                log_checkpoint_steps,
+            };
+            edpm::run::run_cli(&scenario, out.as_deref(), t_end, &overrides, &opts)
+        }
+        Command::Replay {
+            log,
+            at,
+            verify,
+            stats,
+            out,
+        } => edpm::replay::replay_cli(
+            &log,
+            &edpm::replay::ReplayOptions {
+                at,
+                verify,
+                stats,
+                out,
+            },
+        ),
         Command::Bench {
             n,
             phi,

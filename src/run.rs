@@ -19,6 +19,9 @@ use rand_xoshiro::Xoshiro256PlusPlus;
 use crate::collision::ContactParams;
 use crate::domain::{Domain, OutletMode};
 use crate::engine::{CollapseReport, Counters, Engine, EngineConfig, InletZone, NeighbourSearch};
+use crate::eventlog::{
+    CheckpointHeader, LogHeader, LogRecord, LogWriter, RecordKind, checkpoint_particles,
+};
 use crate::materials::MaterialTable;
 use crate::output::{CHECKPOINT_VERSION, Checkpoint, CsvTable, write_atomic};
 use crate::particles::NewParticle;
@@ -31,7 +34,7 @@ pub fn run_cli(
     out: Option<&Path>,
     t_end: Option<f64>,
     overrides: &[String],
-    progress: bool,
+    opts: &RunOptions,
 ) -> anyhow::Result<()> {
     let mut overrides = overrides.to_vec();
     if let Some(t) = t_end {
@@ -47,11 +50,11 @@ pub fn run_cli(
             PathBuf::from("out").join(stem)
         }
     };
-    let summary = run_scenario(
-        &scenario,
-        &out_dir,
-        progress && std::io::stderr().is_terminal(),
-    )?;
+    let opts = RunOptions {
+        progress: opts.progress && std::io::stderr().is_terminal(),
+        ..opts.clone()
+    };
+    let summary = run_scenario_with(&scenario, &out_dir, &opts)?;
     eprintln!(
         "edpm: {} particles, {} pair and {} wall collisions in {:.2} s CPU; results in {}",
         summary.particles_final,
@@ -91,6 +94,8 @@ pub struct Summary {
     /// Particles that exceeded `max_collisions_per_step` (first 1000).
     pub collapse_reports: Vec<CollapseReport>,
     pub collapse_reports_total: usize,
+    /// Size of the event log (bytes), when one was written.
+    pub log_bytes: Option<u64>,
 }
 
 /// The engine's view of the scenario's box.
@@ -127,10 +132,132 @@ pub fn material_table(s: &Scenario) -> MaterialTable {
 
 /// Runs `s` and writes its results into `out_dir`.
 pub fn run_scenario(s: &Scenario, out_dir: &Path, progress: bool) -> anyhow::Result<Summary> {
+    run_scenario_with(
+        s,
+        out_dir,
+        &RunOptions {
+            progress,
+            ..Default::default()
+        },
+    )
+}
+
+/// How `edpm run` runs beyond what the scenario says.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct RunOptions {
+    /// Show a progress bar.
+    pub progress: bool,
+    /// Write a binary event log here.
+    pub log: Option<PathBuf>,
+    /// Full-state checkpoints in the log every this many flow steps
+    /// (default: 10 per run); a final one is always written.
+    pub log_checkpoint_steps: Option<u64>,
+}
+
+/// Runs `s` with `opts` and writes its results into `out_dir`.
+pub fn run_scenario_with(
+    s: &Scenario,
+    out_dir: &Path,
+    opts: &RunOptions,
+) -> anyhow::Result<Summary> {
     match s.engine.queue {
-        QueueKind::IndexedHeap => simulate::<IndexedHeap>(s, out_dir, progress),
-        QueueKind::Calendar => simulate::<CalendarQueue>(s, out_dir, progress),
-        QueueKind::Reference => simulate::<ReferenceQueue>(s, out_dir, progress),
+        QueueKind::IndexedHeap => simulate::<IndexedHeap>(s, out_dir, opts),
+        QueueKind::Calendar => simulate::<CalendarQueue>(s, out_dir, opts),
+        QueueKind::Reference => simulate::<ReferenceQueue>(s, out_dir, opts),
+    }
+}
+
+/// The event log of a run in progress.
+struct RunLog {
+    writer: LogWriter,
+    checkpoint_steps: u64,
+}
+
+impl RunLog {
+    fn create<Q: EventQueue>(
+        s: &Scenario,
+        engine: &Engine<Q>,
+        path: &Path,
+        checkpoint_steps: u64,
+    ) -> anyhow::Result<Self> {
+        let header = LogHeader {
+            writer: format!("edpm {}", env!("CARGO_PKG_VERSION")),
+            scenario_text: s.source_text.clone(),
+            overrides: s.overrides.clone(),
+            seed: s.seed,
+            dt_flow: s.time.dt_flow,
+            domain: engine.domain().clone(),
+            densities: engine.materials().density.clone(),
+            initial: engine
+                .particles()
+                .map(|p| {
+                    (
+                        p.id,
+                        NewParticle {
+                            pos: p.pos,
+                            vel: p.vel,
+                            omega: p.omega,
+                            radius: p.radius,
+                            material: p.material,
+                        },
+                    )
+                })
+                .collect(),
+        };
+        Ok(RunLog {
+            writer: LogWriter::create(path, &header)?,
+            checkpoint_steps,
+        })
+    }
+
+    /// Moves the engine's pending records into the log.
+    fn drain<Q: EventQueue>(&mut self, engine: &mut Engine<Q>) -> anyhow::Result<()> {
+        for r in engine.records.drain(..) {
+            self.writer.push(&LogRecord::from_engine(&r))?;
+        }
+        Ok(())
+    }
+
+    /// A uniform kick `dv` applied to every particle now.
+    fn kick<Q: EventQueue>(&mut self, engine: &Engine<Q>, dv: DVec3) -> anyhow::Result<()> {
+        let mut state_a = [0.0; 9];
+        state_a[..3].copy_from_slice(&dv.to_array());
+        let kind = RecordKind::Kick as u32;
+        self.writer.push(&LogRecord {
+            kind,
+            time: engine.time(),
+            clock: engine.clock(),
+            state_a,
+            ..Default::default()
+        })
+    }
+
+    /// The end of a flow step, logged before the engine synchronises.
+    fn flow_step_end<Q: EventQueue>(&mut self, engine: &mut Engine<Q>) -> anyhow::Result<()> {
+        self.drain(engine)?;
+        let kind = RecordKind::FlowStepEnd as u32;
+        self.writer.push(&LogRecord {
+            kind,
+            time: engine.time(),
+            clock: engine.clock(),
+            ..Default::default()
+        })
+    }
+
+    /// A full-state checkpoint after flow step `step` (1-based).
+    fn checkpoint<Q: EventQueue>(
+        &mut self,
+        engine: &mut Engine<Q>,
+        step: u64,
+    ) -> anyhow::Result<()> {
+        self.drain(engine)?;
+        let header = CheckpointHeader {
+            time: engine.time(),
+            clock: engine.clock(),
+            step,
+        };
+        self.writer
+            .checkpoint(header, &checkpoint_particles(engine.stored_particles()))
     }
 }
 
@@ -289,12 +416,24 @@ const TIME_SERIES_HEADER: [&str; 14] = [
 fn simulate<Q: EventQueue>(
     s: &Scenario,
     out_dir: &Path,
-    progress: bool,
+    opts: &RunOptions,
 ) -> anyhow::Result<Summary> {
     let wall_start = Instant::now();
     let cpu_start = crate::bench::cpu_time();
     let mut engine = build_engine::<Q>(s)?;
     std::fs::create_dir_all(out_dir).with_context(|| format!("creating {}", out_dir.display()))?;
+    let steps_total = (s.time.t_end / s.time.dt_flow - 1e-9).ceil().max(1.0) as u64;
+    let mut log = match &opts.log {
+        Some(path) => {
+            engine.set_recording(true);
+            let every = opts
+                .log_checkpoint_steps
+                .unwrap_or((steps_total / 10).max(1));
+            Some(RunLog::create(s, &engine, path, every)?)
+        }
+        None => None,
+    };
+    let progress = opts.progress;
     let particles_initial = engine.len();
     let dt = s.time.dt_flow;
     let steps = (s.time.t_end / dt - 1e-9).ceil().max(1.0) as u64;
@@ -323,12 +462,30 @@ fn simulate<Q: EventQueue>(
             Splitting::SecondOrder => 0.5,
         };
         if gravity != DVec3::ZERO {
-            engine.kick_all(gravity * (kick * dt));
+            let dv = gravity * (kick * dt);
+            if let Some(log) = log.as_mut() {
+                log.drain(&mut engine)?;
+                log.kick(&engine, dv)?;
+            }
+            engine.kick_all(dv);
         }
         engine.advance(dt);
+        if let Some(log) = log.as_mut() {
+            log.flow_step_end(&mut engine)?;
+        }
         engine.end_flow_step();
         if s.time.splitting == Splitting::SecondOrder && gravity != DVec3::ZERO {
-            engine.kick_all(gravity * (0.5 * dt));
+            let dv = gravity * (0.5 * dt);
+            if let Some(log) = log.as_mut() {
+                log.drain(&mut engine)?;
+                log.kick(&engine, dv)?;
+            }
+            engine.kick_all(dv);
+        }
+        if let Some(log) = log.as_mut()
+            && ((step + 1) % log.checkpoint_steps == 0 || step + 1 == steps)
+        {
+            log.checkpoint(&mut engine, step + 1)?;
         }
         let t = engine.time();
         if t >= next_sample * (1.0 - 1e-9) || step + 1 == steps {
@@ -354,6 +511,14 @@ fn simulate<Q: EventQueue>(
     if let Some(bar) = bar {
         bar.finish_and_clear();
     }
+    let log_bytes = match log.as_mut() {
+        Some(log) => {
+            log.drain(&mut engine)?;
+            log.writer.flush()?;
+            Some(log.writer.bytes)
+        }
+        None => None,
+    };
     let cpu_seconds = crate::bench::cpu_time() - cpu_start;
     series.write(&out_dir.join("timeseries.csv"))?;
     let final_particles: Vec<NewParticle> = engine
@@ -398,6 +563,7 @@ fn simulate<Q: EventQueue>(
             + engine.pending_reinsertions(),
         collapse_reports: engine.collapse_reports.iter().take(1000).copied().collect(),
         collapse_reports_total: engine.collapse_reports.len(),
+        log_bytes,
     };
     let json = serde_json::to_string_pretty(&summary).context("encoding summary")?;
     write_atomic(&out_dir.join("summary.json"), json.as_bytes())?;

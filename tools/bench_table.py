@@ -9,7 +9,7 @@ import statistics
 import subprocess
 import sys
 
-BIN = "target/release/edpm"
+BIN = sys.argv[2] if len(sys.argv) > 2 else "target/release/edpm"
 REPEATS = int(sys.argv[1]) if len(sys.argv) > 1 else 3
 # Settings per packing fraction: the neighbour search and skin that measured
 # fastest (see results/benchmarks.md).
