@@ -265,6 +265,9 @@ const SHELL_EXIT: Scheduled = Scheduled {
     partner_count: 0,
 };
 
+/// `last_partner` value meaning "none, or a wall".
+const NO_PARTNER: u32 = u32::MAX;
+
 /// Attempts to find a free spot when inserting a particle.
 const INSERT_ATTEMPTS: usize = 200;
 
@@ -296,6 +299,8 @@ pub struct Engine<Q: EventQueue> {
     /// Cells mode: the cell each particle is in.
     cell_of: Vec<[usize; 3]>,
     last_collision: Vec<f64>,
+    /// Slot of the last collision partner (`NO_PARTNER` after a wall).
+    last_partner: Vec<u32>,
     step_collisions: Vec<u32>,
     free_slots: Vec<u32>,
     next_id: u64,
@@ -411,6 +416,7 @@ impl<Q: EventQueue> Engine<Q> {
             face_mask: Vec::with_capacity(n),
             cell_of: Vec::with_capacity(n),
             last_collision: Vec::with_capacity(n),
+            last_partner: Vec::with_capacity(n),
             step_collisions: Vec::with_capacity(n),
             free_slots: Vec::new(),
             next_id: 0,
@@ -533,6 +539,7 @@ impl<Q: EventQueue> Engine<Q> {
             self.face_mask[s] = 0;
             self.cell_of[s] = [0; 3];
             self.last_collision[s] = f64::NEG_INFINITY;
+            self.last_partner[s] = NO_PARTNER;
             self.step_collisions[s] = 0;
             return s;
         }
@@ -551,6 +558,7 @@ impl<Q: EventQueue> Engine<Q> {
         self.face_mask.push(0);
         self.cell_of.push([0; 3]);
         self.last_collision.push(f64::NEG_INFINITY);
+        self.last_partner.push(NO_PARTNER);
         self.step_collisions.push(0);
         let slots = self.kin.len();
         self.lists.resize(slots);
@@ -850,6 +858,14 @@ impl<Q: EventQueue> Engine<Q> {
         }
         let now = self.now;
         let mut best_entry = None;
+        // A pair that collided at this very instant may still touch and,
+        // by round-off, still look approaching; colliding it again at delay
+        // 0 would repeat for ever without moving the clock.
+        let just_hit = if self.last_collision[i] == now {
+            self.last_partner[i]
+        } else {
+            NO_PARTNER
+        };
         let mut consider = |entry: u32, kin: &[Kinematics]| {
             let (j, code) = neighbours::unpack(entry);
             let kj = &kin[j as usize];
@@ -859,7 +875,7 @@ impl<Q: EventQueue> Engine<Q> {
                 ki.vel - kj.vel,
                 ki.radius + kj.radius,
             );
-            if t < best {
+            if t < best && !(t == 0.0 && j == just_hit) {
                 best = t;
                 best_entry = Some(entry);
             }
@@ -920,24 +936,31 @@ impl<Q: EventQueue> Engine<Q> {
 
     /// Normal restitution for a contact, after the TC model.
     #[inline]
+    /// Normal restitution for a contact, after the TC model and the
+    /// collapse guard: a particle past `max_collisions_per_step` collides
+    /// elastically for the rest of the step (it is reported at the step's
+    /// end), so that inelastic collapse cannot stall the event loop.
     fn restitution(&self, params: &ContactParams, i: usize, j: Option<usize>) -> ContactParams {
         let tc = self.config.tc;
-        if tc > 0.0 {
-            let recent = |k: usize| self.now - self.last_collision[k] < tc;
-            if recent(i) || j.is_some_and(recent) {
-                return ContactParams {
-                    e_n: 1.0,
-                    ..*params
-                };
-            }
+        let recent = |k: usize| self.now - self.last_collision[k] < tc;
+        let collapsing = |k: usize| self.step_collisions[k] >= self.config.max_collisions_per_step;
+        if (tc > 0.0 && (recent(i) || j.is_some_and(recent)))
+            || collapsing(i)
+            || j.is_some_and(collapsing)
+        {
+            return ContactParams {
+                e_n: 1.0,
+                ..*params
+            };
         }
         *params
     }
 
-    fn note_collision(&mut self, i: usize) {
+    fn note_collision(&mut self, i: usize, partner: u32) {
         self.counter[i] = self.counter[i].wrapping_add(1);
         self.last_collision[i] = self.now;
-        self.step_collisions[i] += 1;
+        self.last_partner[i] = partner;
+        self.step_collisions[i] = self.step_collisions[i].saturating_add(1);
     }
 
     fn state(&self, i: usize) -> State {
@@ -993,8 +1016,8 @@ impl<Q: EventQueue> Engine<Q> {
         self.counters.pair_collisions += 1;
         self.counters.virial += dist * impulse.dot(n);
         self.counters.dissipated_pair += dissipated;
-        self.note_collision(i);
-        self.note_collision(j);
+        self.note_collision(i, j as u32);
+        self.note_collision(j, i as u32);
         if self.config.record_events {
             self.records.push(Record::Collision(CollisionRecord {
                 time: self.time(),
@@ -1027,7 +1050,7 @@ impl<Q: EventQueue> Engine<Q> {
         self.counters.wall_collisions += 1;
         self.counters.dissipated_wall += loss;
         self.counters.wall_impulse[face as usize] -= imp.j;
-        self.note_collision(i);
+        self.note_collision(i, NO_PARTNER);
         if self.config.record_events {
             self.records.push(Record::Collision(CollisionRecord {
                 time: self.time(),

@@ -38,7 +38,7 @@ pub const BLOCK_HEADER_BYTES: usize = 24;
 /// Size of one encoded [`LogRecord`] (bytes).
 pub const RECORD_BYTES: usize = 184;
 /// Size of one encoded [`LogParticle`] (bytes).
-pub const PARTICLE_BYTES: usize = 104;
+pub const PARTICLE_BYTES: usize = 96;
 /// Size of an encoded [`CheckpointHeader`] (bytes).
 pub const CHECKPOINT_HEADER_BYTES: usize = 24;
 /// Records per block: about 750 kB, flushed as one write.
@@ -48,7 +48,7 @@ const KIND_RECORDS: u32 = 1;
 const KIND_CHECKPOINT: u32 = 2;
 
 /// What a record describes ([`LogRecord::kind`]).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[repr(u32)]
 pub enum RecordKind {
     /// Pair collision: `a`, `b` ids, states after the collision.
@@ -238,12 +238,13 @@ impl LogRecord {
     }
 }
 
-/// Writes an event log block by block.
+/// Writes an event log block by block; each block is one `write` call
+/// straight to the file, so a killed run loses at most the pending block.
 pub struct LogWriter {
-    file: std::io::BufWriter<std::fs::File>,
+    file: std::fs::File,
+    /// Block header space followed by the encoded pending records.
     pending: Vec<u8>,
     pending_count: usize,
-    scratch: [u8; RECORD_BYTES],
     /// Bytes written so far, including the pending block once flushed.
     pub bytes: u64,
     pub records: u64,
@@ -256,20 +257,18 @@ impl LogWriter {
             bincode::serde::encode_to_vec(header, config()).context("encoding log header")?;
         let file = std::fs::File::create(path)
             .with_context(|| format!("creating event log {}", path.display()))?;
-        let mut file = std::io::BufWriter::with_capacity(1 << 20, file);
+        let mut file = file;
+        let len = u32::try_from(payload.len()).context("log header exceeds 4 GiB")?;
         let mut fixed = [0u8; FILE_HEADER_BYTES];
         fixed[0..8].copy_from_slice(&FILE_MAGIC);
         fixed[8..12].copy_from_slice(&FORMAT_VERSION.to_le_bytes());
-        fixed[12..16].copy_from_slice(&(payload.len() as u32).to_le_bytes());
+        fixed[12..16].copy_from_slice(&len.to_le_bytes());
         fixed[16..20].copy_from_slice(&crc32fast::hash(&payload).to_le_bytes());
-        file.write_all(&fixed)?;
-        file.write_all(&payload)?;
-        file.flush()?;
+        file.write_all(&[&fixed[..], &payload].concat())?;
         Ok(LogWriter {
             file,
-            pending: Vec::with_capacity(RECORDS_PER_BLOCK * RECORD_BYTES),
+            pending: Self::empty_block(),
             pending_count: 0,
-            scratch: [0; RECORD_BYTES],
             bytes: (FILE_HEADER_BYTES + payload.len()) as u64,
             records: 0,
         })
@@ -277,10 +276,11 @@ impl LogWriter {
 
     /// Appends one record; full blocks are written and flushed.
     pub fn push(&mut self, r: &LogRecord) -> anyhow::Result<()> {
-        let n = bincode::serde::encode_into_slice(r, &mut self.scratch, config())
+        let at = self.pending.len();
+        self.pending.resize(at + RECORD_BYTES, 0);
+        let n = bincode::serde::encode_into_slice(r, &mut self.pending[at..], config())
             .context("encoding record")?;
         debug_assert_eq!(n, RECORD_BYTES);
-        self.pending.extend_from_slice(&self.scratch);
         self.pending_count += 1;
         self.records += 1;
         if self.pending_count == RECORDS_PER_BLOCK {
@@ -289,16 +289,28 @@ impl LogWriter {
         Ok(())
     }
 
-    /// Writes the pending records as one block and flushes the file.
+    fn empty_block() -> Vec<u8> {
+        let mut v = Vec::with_capacity(BLOCK_HEADER_BYTES + RECORDS_PER_BLOCK * RECORD_BYTES);
+        v.resize(BLOCK_HEADER_BYTES, 0);
+        v
+    }
+
+    /// Writes the pending records as one block (one write call).
     pub fn flush(&mut self) -> anyhow::Result<()> {
         if self.pending_count > 0 {
-            let payload = std::mem::take(&mut self.pending);
-            self.write_block(KIND_RECORDS, self.pending_count as u32, &payload)?;
-            self.pending = payload;
-            self.pending.clear();
+            let mut block = std::mem::take(&mut self.pending);
+            let header = block_header(
+                KIND_RECORDS,
+                self.pending_count as u32,
+                &block[BLOCK_HEADER_BYTES..],
+            )?;
+            block[..BLOCK_HEADER_BYTES].copy_from_slice(&header);
+            self.file.write_all(&block)?;
+            self.bytes += block.len() as u64;
+            block.truncate(BLOCK_HEADER_BYTES);
+            self.pending = block;
             self.pending_count = 0;
         }
-        self.file.flush()?;
         Ok(())
     }
 
@@ -317,23 +329,25 @@ impl LogWriter {
                 .context("encoding checkpoint")?;
             payload.extend_from_slice(&scratch);
         }
-        self.write_block(KIND_CHECKPOINT, particles.len() as u32, &payload)?;
-        self.file.flush()?;
-        Ok(())
-    }
-
-    fn write_block(&mut self, kind: u32, count: u32, payload: &[u8]) -> anyhow::Result<()> {
-        let mut h = [0u8; BLOCK_HEADER_BYTES];
-        h[0..4].copy_from_slice(&BLOCK_MAGIC);
-        h[4..8].copy_from_slice(&kind.to_le_bytes());
-        h[8..12].copy_from_slice(&count.to_le_bytes());
-        h[12..16].copy_from_slice(&(payload.len() as u32).to_le_bytes());
-        h[16..20].copy_from_slice(&crc32fast::hash(payload).to_le_bytes());
-        self.file.write_all(&h)?;
-        self.file.write_all(payload)?;
+        let count =
+            u32::try_from(particles.len()).context("checkpoint holds too many particles")?;
+        let header = block_header(KIND_CHECKPOINT, count, &payload)?;
+        self.file.write_all(&[&header[..], &payload].concat())?;
         self.bytes += (BLOCK_HEADER_BYTES + payload.len()) as u64;
         Ok(())
     }
+}
+
+/// The 24-byte header of a block with this payload.
+fn block_header(kind: u32, count: u32, payload: &[u8]) -> anyhow::Result<[u8; BLOCK_HEADER_BYTES]> {
+    let mut h = [0u8; BLOCK_HEADER_BYTES];
+    h[0..4].copy_from_slice(&BLOCK_MAGIC);
+    h[4..8].copy_from_slice(&kind.to_le_bytes());
+    h[8..12].copy_from_slice(&count.to_le_bytes());
+    let len = u32::try_from(payload.len()).context("log block exceeds 4 GiB")?;
+    h[12..16].copy_from_slice(&len.to_le_bytes());
+    h[16..20].copy_from_slice(&crc32fast::hash(payload).to_le_bytes());
+    Ok(h)
 }
 
 /// Why reading a log stopped early or failed.
@@ -467,6 +481,17 @@ impl LogReader {
             return Err(malformed("block header"));
         }
         let (kind, count, len, crc) = (word(4), word(8) as usize, word(12) as usize, word(16));
+        // The block header has no checksum of its own: check that kind,
+        // count and length agree before taking a short file for truncation,
+        // so that a damaged length is reported, not silently cut.
+        let consistent = match kind {
+            KIND_RECORDS => len == count * RECORD_BYTES,
+            KIND_CHECKPOINT => len == CHECKPOINT_HEADER_BYTES + count * PARTICLE_BYTES,
+            _ => false,
+        };
+        if !consistent {
+            return Err(malformed("block header (kind, count and length disagree)"));
+        }
         let body = start + BLOCK_HEADER_BYTES;
         if self.data.len() - body < len {
             self.truncated_at = Some(start as u64);
@@ -481,7 +506,7 @@ impl LogReader {
             });
         }
         let block = match kind {
-            KIND_RECORDS if len == count * RECORD_BYTES => {
+            KIND_RECORDS => {
                 let mut records = Vec::with_capacity(count);
                 for chunk in payload.chunks_exact(RECORD_BYTES) {
                     let (r, _): (LogRecord, usize) =
@@ -491,7 +516,7 @@ impl LogReader {
                 }
                 Block::Records(records)
             }
-            KIND_CHECKPOINT if len == CHECKPOINT_HEADER_BYTES + count * PARTICLE_BYTES => {
+            _ => {
                 let (ch, _): (CheckpointHeader, usize) = bincode::serde::decode_from_slice(
                     &payload[..CHECKPOINT_HEADER_BYTES],
                     config(),
@@ -506,7 +531,6 @@ impl LogReader {
                 }
                 Block::Checkpoint(ch, particles)
             }
-            _ => return Err(malformed("block (unknown kind or size)")),
         };
         self.offset = body + len;
         Ok(Some(block))

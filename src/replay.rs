@@ -328,7 +328,7 @@ impl CollisionStats {
             };
             let a = body(pa);
             let mut n = DVec3::ZERO;
-            n[(r.b / 2) as usize] = if r.b % 2 == 0 { 1.0 } else { -1.0 };
+            n[(r.b / 2) as usize] = if r.b.is_multiple_of(2) { 1.0 } else { -1.0 };
             let loss =
                 collision::kinetic_energy(&a) - collision::kinetic_energy(&after(&a, &r.state_a));
             self.wall.observe(

@@ -99,7 +99,7 @@ fn base_is_valid_and_resolved() {
     assert_eq!(s.wall_contact(0).unwrap().mu, 0.2);
     assert_eq!(s.populations[0].count, 100);
     assert_eq!(s.output.sample_interval, 0.005);
-    assert_eq!(s.engine.skin, 0.1);
+    assert_eq!(s.engine.skin, 0.2);
     assert_eq!(s.source_text, BASE);
     assert_eq!(init(&s).unwrap().len(), 100);
 }

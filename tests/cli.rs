@@ -1,0 +1,492 @@
+//! End-to-end tests of the `edpm` binary: outputs, determinism, overrides,
+//! error messages, checkpoint round trip and `edpm bench`.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+const EDPM: &str = env!("CARGO_BIN_EXE_edpm");
+const ROOT: &str = env!("CARGO_MANIFEST_DIR");
+
+/// The columns of timeseries.csv, as documented in the README (one row per
+/// sample interval) and written by `edpm run`.
+const TIME_SERIES_HEADER: &str = "time_s,particles,pair_collisions,wall_collisions,\
+ke_translational_J,ke_rotational_J,momentum_x_kg_m_s,momentum_y_kg_m_s,momentum_z_kg_m_s,\
+granular_temperature_m2_s2,pressure_kinetic_Pa,pressure_collisional_Pa,dissipated_J,\
+collapse_reports";
+
+const PARTICLES_HEADER: &str =
+    "id,material,radius_m,x_m,y_m,z_m,vx_m_s,vy_m_s,vz_m_s,wx_rad_s,wy_rad_s,wz_rad_s";
+
+/// A fresh, empty directory for one test.
+fn fresh_dir(name: &str) -> PathBuf {
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("cli-{name}"));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// Runs `edpm ARGS` in the crate root with `env` added to the environment.
+fn edpm_env(args: &[&str], env: &[(&str, &str)]) -> Output {
+    let mut cmd = Command::new(EDPM);
+    cmd.current_dir(ROOT).args(args);
+    for (k, v) in env {
+        cmd.env(k, v);
+    }
+    cmd.output().expect("edpm runs")
+}
+
+fn edpm(args: &[&str]) -> Output {
+    edpm_env(args, &[])
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+fn assert_success(o: &Output) {
+    assert!(
+        o.status.success(),
+        "edpm failed ({:?}): {}",
+        o.status,
+        stderr(o)
+    );
+}
+
+/// Asserts a clean failure: non-zero exit, no panic, every `needles` in
+/// stderr. Returns stderr.
+fn assert_clean_failure(o: &Output, needles: &[&str]) -> String {
+    let err = stderr(o);
+    assert!(!o.status.success(), "expected failure, got success: {err}");
+    // A panic exits with 101; a clean error with 1.
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(!err.contains("panicked"), "panic: {err}");
+    for n in needles {
+        assert!(err.contains(n), "stderr lacks {n:?}: {err}");
+    }
+    err
+}
+
+/// `edpm run SCENARIO --out DIR --quiet` plus `extra` arguments.
+fn run_into(scenario: &str, dir: &Path, extra: &[&str]) -> Output {
+    let mut args = vec!["run", scenario, "--out", dir.to_str().unwrap(), "--quiet"];
+    args.extend_from_slice(extra);
+    edpm(&args)
+}
+
+fn summary(dir: &Path) -> serde_json::Value {
+    let text = std::fs::read_to_string(dir.join("summary.json")).unwrap();
+    serde_json::from_str(&text).unwrap()
+}
+
+fn csv_rows(path: &Path) -> (String, Vec<Vec<f64>>) {
+    let text = std::fs::read_to_string(path).unwrap();
+    let mut lines = text.lines();
+    let header = lines.next().unwrap().to_string();
+    let rows = lines
+        .map(|l| {
+            l.split(',')
+                .map(|v| v.parse().unwrap_or_else(|_| panic!("bad number {v:?}")))
+                .collect()
+        })
+        .collect();
+    (header, rows)
+}
+
+fn read(path: &Path) -> Vec<u8> {
+    std::fs::read(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+}
+
+// ---------------------------------------------------------------------------
+
+#[test]
+fn run_writes_summary_time_series_particles_and_checkpoint() {
+    let dir = fresh_dir("outputs");
+    let o = run_into("scenarios/box-walls.toml", &dir, &["--t-end", "0.02"]);
+    assert_success(&o);
+
+    let s = summary(&dir);
+    assert_eq!(s["particles_initial"], 500);
+    assert_eq!(s["particles_final"], 500);
+    assert_eq!(s["seed"], 7);
+    // 0.02 s in flow steps of 1e-4 s.
+    assert_eq!(s["flow_steps"], 200);
+    assert!((s["t_end"].as_f64().unwrap() - 0.02).abs() < 1e-15);
+    let c = &s["counters"];
+    assert!(c["pair_collisions"].as_u64().unwrap() > 0, "{c}");
+    assert!(c["wall_collisions"].as_u64().unwrap() > 0, "{c}");
+    // A closed box: nothing leaves, every particle was inserted once.
+    assert_eq!(c["removed"], 0);
+    assert_eq!(c["inserted"], 500);
+    assert!(s["kinetic_energy_translational"].as_f64().unwrap() > 0.0);
+    assert_eq!(s["collapse_reports_total"], 0);
+
+    // Time series: documented header, samples every 5 ms from 0 to 0.02 s.
+    let (header, rows) = csv_rows(&dir.join("timeseries.csv"));
+    assert_eq!(header, TIME_SERIES_HEADER);
+    assert_eq!(rows.len(), 5, "rows at 0, 5, 10, 15, 20 ms");
+    for (k, row) in rows.iter().enumerate() {
+        assert_eq!(row.len(), 14);
+        assert!(
+            (row[0] - 0.005 * k as f64).abs() < 1e-12,
+            "row {k}: {row:?}"
+        );
+        assert_eq!(row[1], 500.0);
+    }
+    // The per-interval collision counts add up to the summary's totals.
+    let pairs: f64 = rows.iter().map(|r| r[2]).sum();
+    let walls: f64 = rows.iter().map(|r| r[3]).sum();
+    assert_eq!(pairs as u64, c["pair_collisions"].as_u64().unwrap());
+    assert_eq!(walls as u64, c["wall_collisions"].as_u64().unwrap());
+
+    // Final particles: one row each, unique ids, inside the 2 x 4 x 2 cm box.
+    let (header, rows) = csv_rows(&dir.join("final_particles.csv"));
+    assert_eq!(header, PARTICLES_HEADER);
+    assert_eq!(rows.len(), 500);
+    let mut ids: Vec<u64> = rows.iter().map(|r| r[0] as u64).collect();
+    ids.sort_unstable();
+    ids.dedup();
+    assert_eq!(ids.len(), 500);
+    let hi = [0.02, 0.04, 0.02];
+    for r in &rows {
+        assert_eq!(r.len(), 12);
+        let radius = r[2];
+        assert!((0.0005..=0.001).contains(&radius), "{r:?}");
+        for axis in 0..3 {
+            let x = r[3 + axis];
+            assert!(
+                x - radius >= -1e-12 && x + radius <= hi[axis] + 1e-12,
+                "{r:?}"
+            );
+        }
+    }
+
+    // The checkpoint holds the same particles, bit for bit (the CSV prints
+    // shortest round-trip decimals).
+    let cp = edpm::output::Checkpoint::read(&dir.join("final_state.bin")).unwrap();
+    assert_eq!(cp.particles.len(), 500);
+    assert!((cp.time - 0.02).abs() < 1e-15);
+    for (p, r) in cp.particles.iter().zip(&rows) {
+        assert_eq!(p.radius, r[2]);
+        assert_eq!([p.pos.x, p.pos.y, p.pos.z], [r[3], r[4], r[5]]);
+        assert_eq!([p.vel.x, p.vel.y, p.vel.z], [r[6], r[7], r[8]]);
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn runs_are_deterministic_across_repeats_and_thread_counts() {
+    let files = ["timeseries.csv", "final_particles.csv", "final_state.bin"];
+    let run = |name: &str, extra: &[&str], threads: &str| {
+        let dir = fresh_dir(name);
+        let mut args = vec![
+            "run",
+            "scenarios/box-walls.toml",
+            "--out",
+            dir.to_str().unwrap(),
+            "--quiet",
+            "--t-end",
+            "0.02",
+        ];
+        args.extend_from_slice(extra);
+        let o = edpm_env(&args, &[("RAYON_NUM_THREADS", threads)]);
+        assert_success(&o);
+        let out: Vec<Vec<u8>> = files.iter().map(|f| read(&dir.join(f))).collect();
+        std::fs::remove_dir_all(&dir).unwrap();
+        out
+    };
+    let a = run("det-a", &[], "2");
+    let b = run("det-b", &[], "2");
+    let one = run("det-1", &[], "1");
+    let other_seed = run("det-seed", &["--set", "seed=8"], "2");
+    for (k, f) in files.iter().enumerate() {
+        assert!(a[k] == b[k], "{f} differs between identical runs");
+        assert!(a[k] == one[k], "{f} differs between 1 and 2 threads");
+        assert!(a[k] != other_seed[k], "{f} identical for seeds 7 and 8");
+    }
+}
+
+#[test]
+fn set_overrides_reach_the_run() {
+    let dir = fresh_dir("override");
+    let o = run_into(
+        "scenarios/box-walls.toml",
+        &dir,
+        &[
+            "--t-end",
+            "0.01",
+            "--set",
+            "particles.0.count=100",
+            "--set",
+            "output.sample_interval=0.0025",
+        ],
+    );
+    assert_success(&o);
+    let s = summary(&dir);
+    assert_eq!(s["particles_initial"], 100);
+    assert_eq!(s["particles_final"], 100);
+    let overrides: Vec<&str> = s["overrides"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_str().unwrap())
+        .collect();
+    assert!(
+        overrides.contains(&"particles.0.count=100"),
+        "{overrides:?}"
+    );
+    let (_, rows) = csv_rows(&dir.join("final_particles.csv"));
+    assert_eq!(rows.len(), 100);
+    // 0.01 s sampled every 2.5 ms: rows at 0, 2.5, 5, 7.5, 10 ms.
+    let (_, series) = csv_rows(&dir.join("timeseries.csv"));
+    assert_eq!(series.len(), 5);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn bad_overrides_fail_cleanly_naming_the_field_and_range() {
+    let dir = fresh_dir("bad-override");
+    let o = run_into(
+        "scenarios/box-walls.toml",
+        &dir,
+        &["--t-end", "0.01", "--set", "nosuch.key=1"],
+    );
+    assert_clean_failure(&o, &["scenarios/box-walls.toml", "nosuch", "unknown key"]);
+
+    let o = run_into(
+        "scenarios/box-walls.toml",
+        &dir,
+        &["--t-end", "0.01", "--set", "collisions.default.e_n=1.5"],
+    );
+    let err = assert_clean_failure(
+        &o,
+        &[
+            "scenarios/box-walls.toml",
+            "collisions.default.e_n",
+            "1.5",
+            "--set",
+        ],
+    );
+    assert!(
+        err.contains("[0.0, 1.0]") || err.contains("[0, 1]"),
+        "no allowed range in: {err}"
+    );
+
+    // Not KEY=VALUE at all.
+    let o = run_into("scenarios/box-walls.toml", &dir, &["--set", "seed"]);
+    assert_clean_failure(&o, &["seed"]);
+    // An array index out of range.
+    let o = run_into(
+        "scenarios/box-walls.toml",
+        &dir,
+        &["--set", "particles.3.count=1"],
+    );
+    assert_clean_failure(&o, &["particles.3.count=1", "out of range"]);
+    // Nothing was written for the failed runs.
+    assert!(!dir.join("summary.json").exists());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+const SMALL: &str = r#"
+seed = 1
+
+[domain]
+lo = [0.0, 0.0, 0.0]
+hi = [0.01, 0.01, 0.01]
+
+[boundaries]
+wall_material = "steel"
+
+[[materials]]
+name = "glass"
+density = 2500.0
+
+[[materials]]
+name = "steel"
+
+[collisions]
+default = { e_n = 0.9, beta_0 = -1.0, mu = 0.0 }
+
+[[particles]]
+name = "gas"
+material = "glass"
+count = 50
+diameter = 0.001
+temperature = 0.01
+
+[time]
+t_end = 0.01
+dt_flow = 1e-3
+"#;
+
+#[test]
+fn bad_input_files_fail_cleanly_naming_the_file_and_field() {
+    let dir = fresh_dir("bad-input");
+    let out = dir.join("out");
+    let out = out.to_str().unwrap();
+
+    // Missing file.
+    let missing = dir.join("no-such-scenario.toml");
+    let o = edpm(&["run", missing.to_str().unwrap(), "--out", out, "--quiet"]);
+    assert_clean_failure(&o, &["no-such-scenario.toml", "cannot read"]);
+
+    // TOML syntax error: file, line and column.
+    let syntax = dir.join("syntax.toml");
+    std::fs::write(&syntax, "seed = 1\n[domain\nlo = [0, 0, 0]\n").unwrap();
+    let o = edpm(&["run", syntax.to_str().unwrap(), "--out", out, "--quiet"]);
+    assert_clean_failure(&o, &["syntax.toml", "line 2", "TOML syntax error"]);
+
+    // Negative size (the schema gives diameters): file, field, line, value.
+    let negative = dir.join("negative.toml");
+    let text = SMALL.replace("diameter = 0.001", "diameter = -0.001");
+    let line = 1 + text
+        .lines()
+        .position(|l| l.starts_with("diameter = -0.001"))
+        .unwrap();
+    let line = format!("line {line}");
+    std::fs::write(&negative, &text).unwrap();
+    let o = edpm(&["run", negative.to_str().unwrap(), "--out", out, "--quiet"]);
+    assert_clean_failure(
+        &o,
+        &[
+            "negative.toml",
+            "particles[0].diameter",
+            "-0.001",
+            &line,
+            "> 0",
+        ],
+    );
+
+    // Sanity: the unmodified file runs, so the failures above are due to
+    // the edits alone.
+    let good = dir.join("good.toml");
+    std::fs::write(&good, SMALL).unwrap();
+    assert_success(&edpm(&[
+        "run",
+        good.to_str().unwrap(),
+        "--out",
+        out,
+        "--quiet",
+    ]));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// The missing-file message repeats the OS error: `ScenarioError::Io`
+/// formats `{source}` into its own message *and* declares it as
+/// `#[source]`, and main prints the chain with `{:#}`, giving
+/// "...: cannot read scenario file: No such file or directory (os error 2):
+/// No such file or directory (os error 2)".
+#[test]
+#[ignore = "bug: ScenarioError::Io prints the io::Error twice under `{:#}` (message and #[source])"]
+fn missing_file_message_states_the_os_error_once() {
+    let o = edpm(&["run", "no-such-scenario.toml", "--quiet"]);
+    let err = assert_clean_failure(&o, &["no-such-scenario.toml"]);
+    assert_eq!(err.matches("os error 2").count(), 1, "{err}");
+}
+
+#[test]
+fn checkpoint_round_trip_restarts_from_the_final_state() {
+    let dir = fresh_dir("checkpoint");
+    let first = dir.join("first");
+    assert_success(&run_into(
+        "scenarios/box-walls.toml",
+        &first,
+        &["--t-end", "0.02"],
+    ));
+    let s1 = summary(&first);
+
+    // The same box and materials, no populations, the checkpoint path
+    // relative to the scenario file's directory (docs/scenario.md).
+    let box_walls =
+        std::fs::read_to_string(Path::new(ROOT).join("scenarios/box-walls.toml")).unwrap();
+    let start = box_walls.find("[[particles]]").unwrap();
+    let end = box_walls.find("[time]").unwrap();
+    let restart = format!(
+        "{}[initial]\ncheckpoint = \"first/final_state.bin\"\n\n{}",
+        &box_walls[..start],
+        &box_walls[end..]
+    );
+    assert!(!restart.contains("[[particles]]"));
+    let scenario = dir.join("restart.toml");
+    std::fs::write(&scenario, restart).unwrap();
+    let second = dir.join("second");
+    assert_success(&run_into(
+        scenario.to_str().unwrap(),
+        &second,
+        &["--t-end", "0.01"],
+    ));
+    let s2 = summary(&second);
+    assert_eq!(s2["particles_initial"], 500);
+    assert_eq!(s2["particles_final"], 500);
+    assert!(s2["counters"]["pair_collisions"].as_u64().unwrap() > 0);
+
+    // The second run's first sample is the first run's final state: same
+    // kinetic energies (same particles, same order, same arithmetic; 1e-12
+    // allows for summation order only).
+    let (_, rows) = csv_rows(&second.join("timeseries.csv"));
+    let ke1 = s1["kinetic_energy_translational"].as_f64().unwrap();
+    let rot1 = s1["kinetic_energy_rotational"].as_f64().unwrap();
+    assert!(
+        (rows[0][4] - ke1).abs() <= 1e-12 * ke1,
+        "{} vs {ke1}",
+        rows[0][4]
+    );
+    assert!(
+        (rows[0][5] - rot1).abs() <= 1e-12 * rot1,
+        "{} vs {rot1}",
+        rows[0][5]
+    );
+    // And the particles themselves: same radii and positions at the start.
+    let cp1 = edpm::output::Checkpoint::read(&first.join("final_state.bin")).unwrap();
+    let (_, p2) = csv_rows(&second.join("final_particles.csv"));
+    let mut r1: Vec<f64> = cp1.particles.iter().map(|p| p.radius).collect();
+    let mut r2: Vec<f64> = p2.iter().map(|r| r[2]).collect();
+    r1.sort_by(f64::total_cmp);
+    r2.sort_by(f64::total_cmp);
+    assert_eq!(r1, r2);
+
+    // A checkpoint that is not one fails cleanly, naming it.
+    std::fs::write(first.join("final_state.bin"), b"not a checkpoint").unwrap();
+    let o = run_into(scenario.to_str().unwrap(), &second, &["--t-end", "0.01"]);
+    assert_clean_failure(&o, &["final_state.bin"]);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn bench_prints_one_json_line_and_rejects_a_solid_packing() {
+    let o = edpm(&[
+        "bench",
+        "--n",
+        "500",
+        "--phi",
+        "0.2",
+        "--equilibrate",
+        "2",
+        "--measure",
+        "5",
+    ]);
+    assert_success(&o);
+    let stdout = String::from_utf8(o.stdout.clone()).unwrap();
+    let lines: Vec<&str> = stdout.lines().collect();
+    assert_eq!(lines.len(), 1, "{stdout}");
+    let v: serde_json::Value = serde_json::from_str(lines[0]).unwrap();
+    let rate = v["collisions_per_cpu_second"].as_f64().unwrap();
+    assert!(rate.is_finite() && rate > 0.0, "{v}");
+    // 500 = 4 * 5^3 is an FCC count: kept as is.
+    assert_eq!(v["n"], 500);
+    // The measurement (5 collisions per particle) holds ~2.5e3 collisions;
+    // the virial pressure's relative standard error is about
+    // 1/sqrt(collisions) ~ 2 % (measured: +1.6 %). Carnahan-Starling at
+    // phi = 0.2 gives beta P sigma^3 = 0.919; 15 % is > 5 standard errors
+    // and still catches a wrong virial normalisation (factor 2 or d).
+    let p = v["pressure_reduced"].as_f64().unwrap();
+    let cs = v["pressure_carnahan_starling"].as_f64().unwrap();
+    assert!((cs - 0.9191).abs() < 1e-3, "{v}");
+    assert!((p - cs).abs() < 0.15 * cs, "pressure {p} vs CS {cs}");
+    let bytes = v["bytes_per_particle"].as_u64().unwrap();
+    assert!((64..10_000).contains(&bytes), "{v}");
+
+    let o = edpm(&["bench", "--n", "500", "--phi", "0.9"]);
+    let err = assert_clean_failure(&o, &["--phi"]);
+    assert!(err.contains("0.55"), "no allowed range: {err}");
+    assert!(o.stdout.is_empty());
+}
