@@ -934,12 +934,11 @@ impl<Q: EventQueue> Engine<Q> {
         }
     }
 
-    /// Normal restitution for a contact, after the TC model.
-    #[inline]
     /// Normal restitution for a contact, after the TC model and the
     /// collapse guard: a particle past `max_collisions_per_step` collides
     /// elastically for the rest of the step (it is reported at the step's
     /// end), so that inelastic collapse cannot stall the event loop.
+    #[inline]
     fn restitution(&self, params: &ContactParams, i: usize, j: Option<usize>) -> ContactParams {
         let tc = self.config.tc;
         let recent = |k: usize| self.now - self.last_collision[k] < tc;

@@ -376,7 +376,7 @@ fn bad_input_files_fail_cleanly_naming_the_file_and_field() {
 /// "...: cannot read scenario file: No such file or directory (os error 2):
 /// No such file or directory (os error 2)".
 #[test]
-#[ignore = "bug: ScenarioError::Io prints the io::Error twice under `{:#}` (message and #[source])"]
+
 fn missing_file_message_states_the_os_error_once() {
     let o = edpm(&["run", "no-such-scenario.toml", "--quiet"]);
     let err = assert_clean_failure(&o, &["no-such-scenario.toml"]);

@@ -622,8 +622,12 @@ fn time_engine_output_rules() {
     expect_field(
         with(&["output.sample_interval=-1"]),
         "output.sample_interval",
-        "must be in (0, t_end",
+        "must be > 0 s and finite, got -1.0",
     );
+    // Longer than the run: clamped to t_end (samples at start and end).
+    let long =
+        Scenario::from_str_named(BASE, "test.toml", &["output.sample_interval=9".into()]).unwrap();
+    assert_eq!(long.output.sample_interval, long.time.t_end);
     expect_field(with(&["engine.skin=3"]), "engine.skin", "must be in (0, 2]");
     expect_field(
         with(&["engine.queue=fifo"]),

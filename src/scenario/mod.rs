@@ -38,12 +38,8 @@ pub struct Location {
 #[derive(Debug, thiserror::Error)]
 pub enum ScenarioError {
     /// The file could not be read.
-    #[error("{file}: cannot read scenario file: {source}")]
-    Io {
-        file: String,
-        #[source]
-        source: std::io::Error,
-    },
+    #[error("{file}: cannot read scenario file: {error}")]
+    Io { file: String, error: std::io::Error },
     /// The text is not valid TOML.
     #[error("{file}: line {line}, column {column}: TOML syntax error: {message}")]
     Syntax {
@@ -385,9 +381,9 @@ impl Scenario {
     ) -> Result<Scenario, ScenarioError> {
         let path = path.as_ref();
         let name = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(|source| ScenarioError::Io {
+        let text = std::fs::read_to_string(path).map_err(|error| ScenarioError::Io {
             file: name.clone(),
-            source,
+            error,
         })?;
         let mut s = Self::from_str_named(&text, &name, overrides)?;
         if let Some(cp) = &s.initial.checkpoint
