@@ -17,7 +17,7 @@
 //! ([`LogParticle`]). Blocks are written whole and flushed, so a killed run
 //! leaves a log that reads up to its last complete block.
 
-use std::io::{Read, Write};
+use std::io::Write;
 use std::path::Path;
 
 use anyhow::Context;
@@ -149,6 +149,25 @@ fn array_state(a: &[f64; 9]) -> State {
 }
 
 impl LogRecord {
+    /// Decodes one record from its [`RECORD_BYTES`] little-endian bytes:
+    /// the same result as bincode's decoding (tested), without its
+    /// per-field dispatch, since replay reads millions of them.
+    pub fn decode(b: &[u8]) -> LogRecord {
+        let u32_at = |at: usize| u32::from_le_bytes(b[at..at + 4].try_into().expect("4 bytes"));
+        let u64_at = |at: usize| u64::from_le_bytes(b[at..at + 8].try_into().expect("8 bytes"));
+        let f64_at = |at: usize| f64::from_le_bytes(b[at..at + 8].try_into().expect("8 bytes"));
+        LogRecord {
+            kind: u32_at(0),
+            aux: u32_at(4),
+            time: f64_at(8),
+            clock: f64_at(16),
+            a: u64_at(24),
+            b: u64_at(32),
+            state_a: std::array::from_fn(|k| f64_at(40 + 8 * k)),
+            state_b: std::array::from_fn(|k| f64_at(112 + 8 * k)),
+        }
+    }
+
     /// The log form of an engine record.
     pub fn from_engine(r: &Record) -> LogRecord {
         match *r {
@@ -384,36 +403,44 @@ pub enum Block {
     Checkpoint(CheckpointHeader, Vec<LogParticle>),
 }
 
-/// Reads a log sequentially. Blocks are verified against their checksums.
+/// Reads a log sequentially, block by block through one reused buffer.
+/// Blocks are verified against their checksums.
 pub struct LogReader {
     name: String,
-    data: Vec<u8>,
-    offset: usize,
+    file: std::io::BufReader<std::fs::File>,
+    /// File length (bytes).
+    len: u64,
+    /// Byte offset of the next block.
+    offset: u64,
+    buf: Vec<u8>,
     pub header: LogHeader,
     /// Where the reader stopped because the file ended inside a block
     /// (a truncated log), if it did.
     pub truncated_at: Option<u64>,
+    /// A record buffer handed back by [`LogReader::recycle`].
+    spare: Vec<LogRecord>,
 }
 
 impl LogReader {
     /// Opens a log and checks its magic, version and header checksum.
     pub fn open(path: &Path) -> Result<LogReader, LogError> {
+        use std::io::Read;
         let name = path.display().to_string();
-        let mut data = Vec::new();
-        std::fs::File::open(path)
-            .and_then(|mut f| f.read_to_end(&mut data))
-            .map_err(|e| LogError::Io {
-                file: name.clone(),
-                message: e.to_string(),
-            })?;
-        Self::from_bytes(name, data)
-    }
-
-    pub fn from_bytes(name: String, data: Vec<u8>) -> Result<LogReader, LogError> {
-        if data.len() < FILE_HEADER_BYTES || data[0..8] != FILE_MAGIC {
+        let io = |e: std::io::Error| LogError::Io {
+            file: name.clone(),
+            message: e.to_string(),
+        };
+        let file = std::fs::File::open(path).map_err(io)?;
+        let len = file.metadata().map_err(io)?.len();
+        let mut file = std::io::BufReader::with_capacity(1 << 16, file);
+        let mut fixed = [0u8; FILE_HEADER_BYTES];
+        if len < FILE_HEADER_BYTES as u64
+            || file.read_exact(&mut fixed).is_err()
+            || fixed[0..8] != FILE_MAGIC
+        {
             return Err(LogError::NotALog { file: name });
         }
-        let word = |at: usize| u32::from_le_bytes(data[at..at + 4].try_into().expect("4 bytes"));
+        let word = |at: usize| u32::from_le_bytes(fixed[at..at + 4].try_into().expect("4 bytes"));
         let version = word(8);
         if version != FORMAT_VERSION {
             return Err(LogError::Version {
@@ -421,24 +448,24 @@ impl LogReader {
                 found: version,
             });
         }
-        let len = word(12) as usize;
-        let end = FILE_HEADER_BYTES + len;
-        if data.len() < end {
+        let header_len = word(12) as u64;
+        if len < FILE_HEADER_BYTES as u64 + header_len {
             return Err(LogError::Malformed {
                 file: name,
                 what: "file header (truncated)".into(),
                 offset: 0,
             });
         }
-        let payload = &data[FILE_HEADER_BYTES..end];
-        if crc32fast::hash(payload) != word(16) {
+        let mut payload = vec![0u8; header_len as usize];
+        file.read_exact(&mut payload).map_err(io)?;
+        if crc32fast::hash(&payload) != word(16) {
             return Err(LogError::Checksum {
                 file: name,
                 what: "file header".into(),
                 offset: FILE_HEADER_BYTES as u64,
             });
         }
-        let (header, _): (LogHeader, usize) = bincode::serde::decode_from_slice(payload, config())
+        let (header, _): (LogHeader, usize) = bincode::serde::decode_from_slice(&payload, config())
             .map_err(|_| LogError::Malformed {
                 file: name.clone(),
                 what: "file header".into(),
@@ -446,37 +473,52 @@ impl LogReader {
             })?;
         Ok(LogReader {
             name,
-            data,
-            offset: end,
+            file,
+            len,
+            offset: FILE_HEADER_BYTES as u64 + header_len,
+            buf: Vec::new(),
             header,
             truncated_at: None,
+            spare: Vec::new(),
         })
+    }
+
+    /// Hands a block's record buffer back for reuse by the next block
+    /// (saves a large allocation per block when replaying).
+    pub fn recycle(&mut self, records: Vec<LogRecord>) {
+        self.spare = records;
     }
 
     /// Byte offset of the next block.
     pub fn offset(&self) -> u64 {
-        self.offset as u64
+        self.offset
     }
 
     /// The next block, `Ok(None)` at the end of the file or where a
     /// truncated block starts (then `truncated_at` is set).
     pub fn next_block(&mut self) -> Result<Option<Block>, LogError> {
+        use std::io::Read;
         let start = self.offset;
-        let rest = self.data.len() - start;
+        let rest = self.len - start;
         if rest == 0 {
             return Ok(None);
         }
-        if rest < BLOCK_HEADER_BYTES {
-            self.truncated_at = Some(start as u64);
+        if rest < BLOCK_HEADER_BYTES as u64 {
+            self.truncated_at = Some(start);
             return Ok(None);
         }
-        let h = &self.data[start..start + BLOCK_HEADER_BYTES];
-        let word = |at: usize| u32::from_le_bytes(h[at..at + 4].try_into().expect("4 bytes"));
+        let io = |e: std::io::Error| LogError::Io {
+            file: self.name.clone(),
+            message: e.to_string(),
+        };
         let malformed = |what: &str| LogError::Malformed {
             file: self.name.clone(),
             what: what.into(),
-            offset: start as u64,
+            offset: start,
         };
+        let mut h = [0u8; BLOCK_HEADER_BYTES];
+        self.file.read_exact(&mut h).map_err(io)?;
+        let word = |at: usize| u32::from_le_bytes(h[at..at + 4].try_into().expect("4 bytes"));
         if h[0..4] != BLOCK_MAGIC {
             return Err(malformed("block header"));
         }
@@ -492,28 +534,25 @@ impl LogReader {
         if !consistent {
             return Err(malformed("block header (kind, count and length disagree)"));
         }
-        let body = start + BLOCK_HEADER_BYTES;
-        if self.data.len() - body < len {
-            self.truncated_at = Some(start as u64);
+        if rest - (BLOCK_HEADER_BYTES as u64) < len as u64 {
+            self.truncated_at = Some(start);
             return Ok(None);
         }
-        let payload = &self.data[body..body + len];
+        self.buf.resize(len, 0);
+        self.file.read_exact(&mut self.buf).map_err(io)?;
+        let payload = &self.buf[..];
         if crc32fast::hash(payload) != crc {
             return Err(LogError::Checksum {
                 file: self.name.clone(),
                 what: "block".into(),
-                offset: start as u64,
+                offset: start,
             });
         }
         let block = match kind {
             KIND_RECORDS => {
-                let mut records = Vec::with_capacity(count);
-                for chunk in payload.chunks_exact(RECORD_BYTES) {
-                    let (r, _): (LogRecord, usize) =
-                        bincode::serde::decode_from_slice(chunk, config())
-                            .map_err(|_| malformed("record"))?;
-                    records.push(r);
-                }
+                let mut records = std::mem::take(&mut self.spare);
+                records.clear();
+                records.extend(payload.chunks_exact(RECORD_BYTES).map(LogRecord::decode));
                 Block::Records(records)
             }
             _ => {
@@ -532,7 +571,7 @@ impl LogReader {
                 Block::Checkpoint(ch, particles)
             }
         };
-        self.offset = body + len;
+        self.offset = start + (BLOCK_HEADER_BYTES + len) as u64;
         Ok(Some(block))
     }
 }
@@ -550,8 +589,10 @@ pub struct ReplayParticle {
 /// The trajectory rebuilt from records alone: no scheduler, no forces.
 #[derive(Clone, Debug)]
 pub struct Replay {
-    /// Particles by id (BTreeMap: deterministic order).
-    pub particles: std::collections::BTreeMap<u64, ReplayParticle>,
+    /// Particles indexed by id (ids are dense: 0, 1, 2, … in insertion order).
+    particles: Vec<Option<ReplayParticle>>,
+    /// Number of particles present.
+    count: usize,
     /// Absolute time at which the current flow step started (s).
     pub origin: f64,
     /// Flow steps completed.
@@ -563,37 +604,71 @@ pub struct Replay {
 impl Replay {
     /// The state at time 0 from the header.
     pub fn start(header: &LogHeader) -> Replay {
-        let particles = header
-            .initial
-            .iter()
-            .map(|(id, p)| {
-                let state = State {
-                    pos: p.pos,
-                    vel: p.vel,
-                    omega: p.omega,
-                };
-                (
-                    *id,
-                    ReplayParticle {
-                        radius: p.radius,
-                        material: p.material as u32,
-                        state,
-                        clock: 0.0,
-                    },
-                )
-            })
-            .collect();
-        Replay {
-            particles,
+        let mut replay = Replay {
+            particles: Vec::new(),
+            count: 0,
             origin: 0.0,
             step: 0,
             time: 0.0,
+        };
+        for (id, p) in &header.initial {
+            let state = State {
+                pos: p.pos,
+                vel: p.vel,
+                omega: p.omega,
+            };
+            replay.insert(
+                *id,
+                ReplayParticle {
+                    radius: p.radius,
+                    material: p.material as u32,
+                    state,
+                    clock: 0.0,
+                },
+            );
+        }
+        replay
+    }
+
+    /// Number of particles present.
+    pub fn len(&self) -> usize {
+        self.count
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.count == 0
+    }
+
+    /// The particle with this id, if present.
+    pub fn get(&self, id: u64) -> Option<&ReplayParticle> {
+        self.particles.get(id as usize).and_then(Option::as_ref)
+    }
+
+    /// Present particles with their ids, in id order.
+    pub fn iter(&self) -> impl Iterator<Item = (u64, &ReplayParticle)> + '_ {
+        self.particles
+            .iter()
+            .enumerate()
+            .filter_map(|(id, p)| p.as_ref().map(|p| (id as u64, p)))
+    }
+
+    fn insert(&mut self, id: u64, p: ReplayParticle) {
+        let k = id as usize;
+        if k >= self.particles.len() {
+            self.particles.resize(k + 1, None);
+        }
+        if self.particles[k].replace(p).is_none() {
+            self.count += 1;
         }
     }
 
     /// Applies one record, exactly as the engine changed its state.
     pub fn apply(&mut self, r: &LogRecord) -> Result<(), String> {
-        let mut set = |id: u64, s: &[f64; 9]| match self.particles.get_mut(&id) {
+        let mut set = |id: u64, s: &[f64; 9]| match self
+            .particles
+            .get_mut(id as usize)
+            .and_then(Option::as_mut)
+        {
             Some(p) => {
                 p.state = array_state(s);
                 p.clock = r.clock;
@@ -619,15 +694,16 @@ impl Replay {
                     state: array_state(&r.state_a),
                     clock: r.clock,
                 };
-                self.particles.insert(r.a, p);
+                self.insert(r.a, p);
             }
             k if k == RecordKind::Remove as u32 => {
-                self.particles
-                    .remove(&r.a)
-                    .ok_or_else(|| format!("removal of unknown particle {}", r.a))?;
+                match self.particles.get_mut(r.a as usize).and_then(Option::take) {
+                    Some(_) => self.count -= 1,
+                    None => return Err(format!("removal of unknown particle {}", r.a)),
+                }
             }
             k if k == RecordKind::FlowStepEnd as u32 => {
-                for p in self.particles.values_mut() {
+                for p in self.particles.iter_mut().flatten() {
                     p.state.pos += p.state.vel * (r.clock - p.clock);
                     p.clock = 0.0;
                 }
@@ -636,7 +712,7 @@ impl Replay {
             }
             k if k == RecordKind::Kick as u32 => {
                 let dv = DVec3::new(r.state_a[0], r.state_a[1], r.state_a[2]);
-                for p in self.particles.values_mut() {
+                for p in self.particles.iter_mut().flatten() {
                     p.state.vel += dv;
                 }
             }
@@ -648,18 +724,17 @@ impl Replay {
 
     /// Replaces the state by a checkpoint's.
     pub fn load_checkpoint(&mut self, h: &CheckpointHeader, particles: &[LogParticle]) {
-        self.particles = particles
-            .iter()
-            .map(|p| {
-                let rp = ReplayParticle {
-                    radius: p.radius,
-                    material: p.material,
-                    state: array_state(&p.state),
-                    clock: h.clock,
-                };
-                (p.id, rp)
-            })
-            .collect();
+        self.particles.clear();
+        self.count = 0;
+        for p in particles {
+            let rp = ReplayParticle {
+                radius: p.radius,
+                material: p.material,
+                state: array_state(&p.state),
+                clock: h.clock,
+            };
+            self.insert(p.id, rp);
+        }
         self.origin = h.time - h.clock;
         self.step = h.step;
         self.time = h.time;
@@ -667,15 +742,15 @@ impl Replay {
 
     /// First difference from a checkpoint, or `None` when bit-identical.
     pub fn compare(&self, particles: &[LogParticle]) -> Option<String> {
-        if particles.len() != self.particles.len() {
+        if particles.len() != self.count {
             return Some(format!(
                 "{} particles replayed, {} in the checkpoint",
-                self.particles.len(),
+                self.count,
                 particles.len()
             ));
         }
         for p in particles {
-            let Some(r) = self.particles.get(&p.id) else {
+            let Some(r) = self.get(p.id) else {
                 return Some(format!("particle {} is missing from the replay", p.id));
             };
             let replayed = state_array(&r.state);
@@ -692,12 +767,12 @@ impl Replay {
         None
     }
 
-    /// Positions at absolute time `t` within the current flow step.
+    /// Positions at absolute time `t` within the current flow step, in id
+    /// order.
     pub fn positions_at(&self, t: f64) -> Vec<(u64, ReplayParticle)> {
         let clock = t - self.origin;
-        self.particles
-            .iter()
-            .map(|(&id, p)| {
+        self.iter()
+            .map(|(id, p)| {
                 let mut q = *p;
                 q.state.pos += p.state.vel * (clock - p.clock);
                 q.clock = clock;

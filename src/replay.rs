@@ -144,6 +144,7 @@ pub fn replay_log(path: &Path, opts: &ReplayOptions) -> anyhow::Result<(ReplayOu
                         .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
                     outcome.records += 1;
                 }
+                reader.recycle(records);
             }
             Block::Checkpoint(h, particles) => {
                 if opts.at.is_some_and(|t| h.time > t) {
@@ -166,7 +167,7 @@ pub fn replay_log(path: &Path, opts: &ReplayOptions) -> anyhow::Result<(ReplayOu
     }
     outcome.truncated_at = reader.truncated_at;
     outcome.end_time = replay.time;
-    outcome.particles = replay.particles.len();
+    outcome.particles = replay.len();
     if let Some(s) = stats.as_mut() {
         s.duration = replay.time;
     }
@@ -290,7 +291,7 @@ impl CollisionStats {
     }
 
     fn observe(&mut self, header: &LogHeader, replay: &Replay, r: &LogRecord) {
-        self.particle_seconds += replay.particles.len() as f64 * (r.time - self.last_time);
+        self.particle_seconds += replay.len() as f64 * (r.time - self.last_time);
         self.last_time = r.time;
         self.mean_particles = self.particle_seconds / r.time.max(1e-300);
         let body = |p: &ReplayParticle| Body {
@@ -308,8 +309,7 @@ impl CollisionStats {
             ..*b
         };
         if r.kind == RecordKind::Pair as u32 {
-            let (Some(pa), Some(pb)) = (replay.particles.get(&r.a), replay.particles.get(&r.b))
-            else {
+            let (Some(pa), Some(pb)) = (replay.get(r.a), replay.get(r.b)) else {
                 return;
             };
             let (a, b) = (body(pa), body(pb));
@@ -323,7 +323,7 @@ impl CollisionStats {
             self.pair
                 .observe(collision::contact_velocity(n, &a, &b), n, loss, r.aux);
         } else if r.kind == RecordKind::Wall as u32 {
-            let Some(pa) = replay.particles.get(&r.a) else {
+            let Some(pa) = replay.get(r.a) else {
                 return;
             };
             let a = body(pa);

@@ -488,6 +488,10 @@ fn simulate<Q: EventQueue>(
             engine.kick_all(dv);
         }
         engine.advance(dt);
+        if let Some(log) = log.as_mut() {
+            // Drain every step: the record buffer stays small and in cache.
+            log.drain(&mut engine)?;
+        }
         let t = engine.time();
         let last_step = step + 1 == steps;
         let sample_now = t >= next_sample * (1.0 - 1e-9) || last_step;
