@@ -37,6 +37,9 @@ pub struct BenchOptions {
     pub skin: f64,
     pub queue: QueueKind,
     pub neighbours: NeighbourSearch,
+    /// Renumber particles in cell order every this many collisions per
+    /// particle (0: never), for memory locality.
+    pub reorder_every: f64,
     pub seed: u64,
 }
 
@@ -51,6 +54,7 @@ impl Default for BenchOptions {
             skin: 0.2,
             queue: QueueKind::default(),
             neighbours: NeighbourSearch::Lists,
+            reorder_every: 20.0,
             seed: 1,
         }
     }
@@ -181,13 +185,21 @@ fn run_with<Q: EventQueue>(opts: &BenchOptions) -> BenchResult {
     let interval = opts
         .flow_step
         .map_or(10.0 * mean_free_time, |f| f * mean_free_time);
-    let run_until = |engine: &mut Engine<Q>, collisions: u64| {
+    let reorder_every = (opts.reorder_every * n as f64) as u64;
+    let mut last_reorder = 0;
+    let mut run_until = |engine: &mut Engine<Q>, collisions: u64| {
         let target = engine.counters.pair_collisions + collisions;
         while engine.counters.pair_collisions < target {
             engine.advance(interval);
             if opts.flow_step.is_some() {
                 engine.end_flow_step();
                 engine.kick_all(DVec3::ZERO);
+            }
+            if reorder_every > 0 && engine.counters.pair_collisions - last_reorder >= reorder_every
+            {
+                engine.end_flow_step();
+                engine.reorder_by_cell();
+                last_reorder = engine.counters.pair_collisions;
             }
         }
     };

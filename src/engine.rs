@@ -775,6 +775,61 @@ impl<Q: EventQueue> Engine<Q> {
         self.retry_pending_reinsertions();
     }
 
+    /// Renumbers the particles in cell order so that neighbours in space
+    /// are neighbours in memory, and rebuilds the neighbour structure.
+    /// Call right after [`Engine::end_flow_step`] (all particles
+    /// synchronised, every event to be re-predicted). Ids are kept; slots
+    /// change, and free slots are compacted away. Deterministic: the order
+    /// is by cell, then by id.
+    pub fn reorder_by_cell(&mut self) {
+        assert!(self.needs_prediction, "reorder only between flow steps");
+        let mut order: Vec<(usize, u64, usize)> = (0..self.kin.len())
+            .filter(|&i| self.active[i])
+            .map(|i| {
+                let c = self.cells.coords(self.domain.wrap(self.kin[i].pos));
+                let d = self.cells.dims();
+                (c[0] + d[0] * (c[1] + d[1] * c[2]), self.id[i], i)
+            })
+            .collect();
+        order.sort_unstable();
+        let mut new_slot = vec![NO_PARTNER; self.kin.len()];
+        for (k, &(_, _, old)) in order.iter().enumerate() {
+            new_slot[old] = k as u32;
+        }
+        fn permute<T: Copy>(v: &mut Vec<T>, order: &[(usize, u64, usize)]) {
+            *v = order.iter().map(|&(_, _, old)| v[old]).collect();
+        }
+        permute(&mut self.kin, &order);
+        permute(&mut self.omega, &order);
+        permute(&mut self.inv_mass, &order);
+        permute(&mut self.material, &order);
+        permute(&mut self.id, &order);
+        permute(&mut self.active, &order);
+        permute(&mut self.shells, &order);
+        permute(&mut self.last_collision, &order);
+        permute(&mut self.last_partner, &order);
+        permute(&mut self.step_collisions, &order);
+        for p in &mut self.last_partner {
+            if *p != NO_PARTNER {
+                *p = new_slot[*p as usize];
+            }
+        }
+        let n = order.len();
+        // Every prediction is redone: event counters start afresh.
+        self.counter = vec![0; n];
+        self.scheduled = vec![SHELL_EXIT; n];
+        self.face_mask = vec![0; n];
+        self.cell_of = vec![[0; 3]; n];
+        self.free_slots.clear();
+        self.queue.clear();
+        self.lists = NeighbourLists::new(n, self.lists.stride());
+        self.cells = self.cells.emptied(n);
+        for i in 0..n {
+            self.shells[i].centre = self.kin[i].pos;
+            self.enter_grid(i);
+        }
+    }
+
     /// Adds `dv` to the velocity of every particle (a force over a flow
     /// step). Call between [`Engine::end_flow_step`] and the next advance.
     pub fn kick_all(&mut self, dv: DVec3) {

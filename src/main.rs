@@ -89,6 +89,10 @@ enum Command {
         /// Neighbour search: per-particle lists or cells.
         #[arg(long, value_enum, default_value = "lists")]
         neighbours: NeighbourArg,
+        /// Renumber particles in cell order every this many collisions per
+        /// particle, for memory locality (0: never).
+        #[arg(long, default_value_t = 20.0)]
+        reorder_every: f64,
         #[arg(long, default_value_t = 1)]
         seed: u64,
     },
@@ -160,6 +164,7 @@ fn main() -> ExitCode {
             skin,
             queue,
             neighbours,
+            reorder_every,
             seed,
         } => {
             let checks = [
@@ -190,6 +195,7 @@ fn main() -> ExitCode {
                             NeighbourArg::Lists => NeighbourSearch::Lists,
                             NeighbourArg::Cells => NeighbourSearch::Cells,
                         },
+                        reorder_every,
                         seed,
                     };
                     let r = bench::run(&opts);

@@ -167,6 +167,15 @@ impl CellGrid {
         self.position.resize(slots, (NONE, 0));
     }
 
+    /// The same grid with no particles, for `slots` slots.
+    pub fn emptied(&self, slots: usize) -> CellGrid {
+        CellGrid {
+            len: vec![0; self.len.len()],
+            position: vec![(NONE, 0); slots],
+            ..self.clone()
+        }
+    }
+
     /// Cells per axis.
     pub fn dims(&self) -> [usize; 3] {
         self.cells
