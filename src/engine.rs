@@ -219,6 +219,18 @@ struct Shell {
     reach: f64,
 }
 
+impl From<ParticleView> for NewParticle {
+    fn from(p: ParticleView) -> Self {
+        NewParticle {
+            pos: p.pos,
+            vel: p.vel,
+            omega: p.omega,
+            radius: p.radius,
+            material: p.material,
+        }
+    }
+}
+
 /// Position, velocity, radius and the time they refer to: one cache line.
 #[derive(Clone, Copy, Debug, Default)]
 #[repr(C, align(64))]

@@ -190,18 +190,7 @@ impl RunLog {
             densities: engine.materials().density.clone(),
             initial: engine
                 .particles()
-                .map(|p| {
-                    (
-                        p.id,
-                        NewParticle {
-                            pos: p.pos,
-                            vel: p.vel,
-                            omega: p.omega,
-                            radius: p.radius,
-                            material: p.material,
-                        },
-                    )
-                })
+                .map(|p| (p.id, NewParticle::from(p)))
                 .collect(),
         };
         Ok(RunLog {
@@ -553,16 +542,7 @@ fn simulate<Q: EventQueue>(
     };
     let cpu_seconds = crate::bench::cpu_time() - cpu_start;
     series.write(&out_dir.join("timeseries.csv"))?;
-    let final_particles: Vec<NewParticle> = engine
-        .particles()
-        .map(|p| NewParticle {
-            pos: p.pos,
-            vel: p.vel,
-            omega: p.omega,
-            radius: p.radius,
-            material: p.material,
-        })
-        .collect();
+    let final_particles: Vec<NewParticle> = engine.particles().map(NewParticle::from).collect();
     Checkpoint {
         version: CHECKPOINT_VERSION,
         time: engine.time(),

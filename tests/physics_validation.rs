@@ -173,16 +173,7 @@ fn cool(
     while melt.counters.pair_collisions < 5 * particles.len() as u64 {
         melt.advance(0.1);
     }
-    let melted: Vec<NewParticle> = melt
-        .particles()
-        .map(|p| NewParticle {
-            pos: p.pos,
-            vel: p.vel,
-            omega: p.omega,
-            radius: p.radius,
-            material: p.material,
-        })
-        .collect();
+    let melted: Vec<NewParticle> = melt.particles().map(NewParticle::from).collect();
     let mut engine: Engine<IndexedHeap> = Engine::new(
         domain,
         MaterialTable::single(UNIT_MASS_DENSITY, params),
