@@ -676,18 +676,22 @@ impl<Q: EventQueue> Engine<Q> {
     /// Bytes of engine state per particle (all per-particle arrays,
     /// neighbour lists at their current stride, and the cell links).
     pub fn bytes_per_particle(&self) -> usize {
-        std::mem::size_of::<Kinematics>()
-            + std::mem::size_of::<DVec3>() * 2
-            + std::mem::size_of::<f64>() * 2
-            + std::mem::size_of::<u16>()
-            + std::mem::size_of::<u64>()
-            + std::mem::size_of::<bool>()
-            + std::mem::size_of::<u32>() * 2
-            + std::mem::size_of::<Scheduled>()
-            + std::mem::size_of::<u8>()
-            + std::mem::size_of::<u32>() * (self.lists.stride() + 1)
-            + std::mem::size_of::<u32>() * 3
-            + 16 // event queue entry and position index
+        use std::mem::size_of;
+        let per_slot = size_of::<Kinematics>()
+            + size_of::<DVec3>() // omega
+            + size_of::<f64>() * 2 // inverse mass, last collision
+            + size_of::<u16>()
+            + size_of::<u64>() // id
+            + size_of::<bool>()
+            + size_of::<u32>() * 3 // counter, last partner, collisions this step
+            + size_of::<Scheduled>()
+            + size_of::<Shell>()
+            + size_of::<u8>()
+            + size_of::<[usize; 3]>()
+            + size_of::<u32>() * (self.lists.stride() + 1);
+        let queue = 16; // one (time, index) entry and a position per particle
+        let slots = self.kin.len().max(1);
+        per_slot + queue + self.cells.heap_bytes() / slots
     }
 
     // ----- the event loop ------------------------------------------------
@@ -848,16 +852,6 @@ impl<Q: EventQueue> Engine<Q> {
         for (k, &active) in self.kin.iter_mut().zip(&self.active) {
             if active {
                 k.vel += dv;
-            }
-        }
-        self.needs_prediction = true;
-    }
-
-    /// Adds a per-particle velocity change `dv(view)`.
-    pub fn kick_each(&mut self, mut dv: impl FnMut(&ParticleView) -> DVec3) {
-        for i in 0..self.kin.len() {
-            if let Some(view) = self.particle(i) {
-                self.kin[i].vel += dv(&view);
             }
         }
         self.needs_prediction = true;

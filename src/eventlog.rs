@@ -801,14 +801,6 @@ pub fn checkpoint_particles<'a>(
         .collect()
 }
 
-/// Writes the first bytes of `path` as they would be after a crash at
-/// `len` bytes (for tests of truncated logs).
-pub fn truncate_copy(path: &Path, len: u64, to: &Path) -> anyhow::Result<()> {
-    let data = std::fs::read(path)?;
-    std::fs::write(to, &data[..(len as usize).min(data.len())])?;
-    Ok(())
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;

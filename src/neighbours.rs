@@ -273,14 +273,11 @@ impl CellGrid {
         self.stride = new_stride;
     }
 
-    /// Entries per cell the grid is laid out for (memory reports).
-    pub fn stride(&self) -> usize {
-        self.stride
-    }
-
-    /// Number of cells.
-    pub fn cell_count(&self) -> usize {
-        self.len.len()
+    /// Heap memory of the grid (bytes).
+    pub fn heap_bytes(&self) -> usize {
+        self.entries.len() * std::mem::size_of::<CellEntry>()
+            + self.len.len() * std::mem::size_of::<u32>()
+            + self.position.len() * std::mem::size_of::<(u32, u32)>()
     }
 
     /// Calls `f(entry, image)` once for every entry in the cell of `p` and
