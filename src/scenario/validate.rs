@@ -47,6 +47,29 @@ fn under(path: &str, prefix: &str) -> bool {
             .is_some_and(|rest| rest.starts_with('.') || rest.starts_with('['))
 }
 
+/// A key of `[boundaries.inlet]` that a `remove` outlet requires and a
+/// `reinsert` outlet forbids (`why` says why it is forbidden).
+fn remove_only<T>(
+    ctx: &Ctx<'_>,
+    key: &str,
+    value: Option<T>,
+    mode: OutletMode,
+    why: &str,
+) -> R<Option<T>> {
+    match (mode, value) {
+        (OutletMode::Remove, Some(v)) => Ok(Some(v)),
+        (OutletMode::Remove, None) => Err(ctx.err(
+            key,
+            "required key is missing (boundaries.outlet.mode = \"remove\")",
+        )),
+        (OutletMode::Reinsert, Some(_)) => Err(ctx.err(
+            key,
+            format!("not allowed with boundaries.outlet.mode = \"reinsert\" ({why})"),
+        )),
+        (OutletMode::Reinsert, None) => Ok(None),
+    }
+}
+
 impl Ctx<'_> {
     /// A field error; the location is looked up in the text unless the field
     /// was set by `--set`.
@@ -562,54 +585,39 @@ pub(crate) fn validate(ctx: &Ctx, raw: RawScenario) -> R<Scenario> {
         }
         (Some(inl), Some(o)) => {
             let ip = "boundaries.inlet";
-            let solids_flux = match (o.mode, inl.solids_flux) {
-                (OutletMode::Remove, Some(f)) => {
-                    Some(ctx.positive(&format!("{ip}.solids_flux"), f)?)
-                }
-                (OutletMode::Remove, None) => {
-                    return Err(ctx.err(
-                        format!("{ip}.solids_flux"),
-                        "required key is missing (boundaries.outlet.mode = \"remove\")",
-                    ));
-                }
-                (OutletMode::Reinsert, Some(_)) => {
-                    return Err(ctx.err(
-                        format!("{ip}.solids_flux"),
-                        "not allowed with boundaries.outlet.mode = \"reinsert\" (the feed is the outflow)",
-                    ));
-                }
-                (OutletMode::Reinsert, None) => None,
-            };
-            let population = match (o.mode, &inl.population) {
-                (OutletMode::Remove, Some(name)) => {
-                    Some(population_index.get(name).copied().ok_or_else(|| {
-                        ctx.err(
-                            format!("{ip}.population"),
-                            format!(
-                                "no [[particles]] population named '{name}'; defined: {}",
-                                populations
-                                    .iter()
-                                    .map(|p| format!("'{}'", p.name))
-                                    .collect::<Vec<_>>()
-                                    .join(", ")
-                            ),
-                        )
-                    })?)
-                }
-                (OutletMode::Remove, None) => {
-                    return Err(ctx.err(
+            let solids_flux = remove_only(
+                ctx,
+                &format!("{ip}.solids_flux"),
+                inl.solids_flux,
+                o.mode,
+                "the feed is the outflow",
+            )?
+            .map(|f| ctx.positive(&format!("{ip}.solids_flux"), f))
+            .transpose()?;
+            let why = "reinserted particles keep their own size and material";
+            let population = remove_only(
+                ctx,
+                &format!("{ip}.population"),
+                inl.population.as_ref(),
+                o.mode,
+                why,
+            )?
+            .map(|name| {
+                population_index.get(name).copied().ok_or_else(|| {
+                    let defined: Vec<String> = populations
+                        .iter()
+                        .map(|p| format!("'{}'", p.name))
+                        .collect();
+                    ctx.err(
                         format!("{ip}.population"),
-                        "required key is missing (boundaries.outlet.mode = \"remove\")",
-                    ));
-                }
-                (OutletMode::Reinsert, Some(_)) => {
-                    return Err(ctx.err(
-                        format!("{ip}.population"),
-                        "not allowed with boundaries.outlet.mode = \"reinsert\" (reinserted particles keep their own size and material)",
-                    ));
-                }
-                (OutletMode::Reinsert, None) => None,
-            };
+                        format!(
+                            "no [[particles]] population named '{name}'; defined: {}",
+                            defined.join(", ")
+                        ),
+                    )
+                })
+            })
+            .transpose()?;
             let velocity = match inl.velocity {
                 Some(v) => ctx.vec3(&format!("{ip}.velocity"), v)?,
                 None => DVec3::ZERO,
