@@ -494,6 +494,53 @@ impl LogReader {
         self.offset
     }
 
+    /// Byte offsets and times of the checkpoint blocks from here on, found
+    /// by reading block headers only (payloads are skipped, not verified;
+    /// they are when read). Stops quietly at a damaged or truncated block.
+    /// The reader's position is left unchanged.
+    pub fn checkpoint_index(&mut self) -> Result<Vec<(u64, f64)>, LogError> {
+        use std::io::{Read, Seek, SeekFrom};
+        let io = |e: std::io::Error| LogError::Io {
+            file: self.name.clone(),
+            message: e.to_string(),
+        };
+        let start = self.offset;
+        let mut at = start;
+        let mut index = Vec::new();
+        while self.len - at >= BLOCK_HEADER_BYTES as u64 {
+            let mut h = [0u8; BLOCK_HEADER_BYTES];
+            self.file.seek(SeekFrom::Start(at)).map_err(io)?;
+            self.file.read_exact(&mut h).map_err(io)?;
+            let word = |k: usize| u32::from_le_bytes(h[k..k + 4].try_into().expect("4 bytes"));
+            let len = word(12) as u64;
+            if h[0..4] != BLOCK_MAGIC || self.len - at - (BLOCK_HEADER_BYTES as u64) < len {
+                break;
+            }
+            if word(4) == KIND_CHECKPOINT && len >= 8 {
+                let mut t = [0u8; 8];
+                self.file.read_exact(&mut t).map_err(io)?;
+                index.push((at, f64::from_le_bytes(t)));
+            }
+            at += BLOCK_HEADER_BYTES as u64 + len;
+        }
+        self.seek(start)?;
+        Ok(index)
+    }
+
+    /// Continues reading at byte `offset`, which must be a block start
+    /// (from [`LogReader::offset`] or [`LogReader::checkpoint_index`]).
+    pub fn seek(&mut self, offset: u64) -> Result<(), LogError> {
+        use std::io::{Seek, SeekFrom};
+        self.file
+            .seek(SeekFrom::Start(offset))
+            .map_err(|e| LogError::Io {
+                file: self.name.clone(),
+                message: e.to_string(),
+            })?;
+        self.offset = offset;
+        Ok(())
+    }
+
     /// The next block, `Ok(None)` at the end of the file or where a
     /// truncated block starts (then `truncated_at` is set).
     pub fn next_block(&mut self) -> Result<Option<Block>, LogError> {

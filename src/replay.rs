@@ -106,6 +106,16 @@ pub fn replay_log(path: &Path, opts: &ReplayOptions) -> anyhow::Result<(ReplayOu
     let mut reader = LogReader::open(path)?;
     let mut replay = Replay::start(&reader.header);
     let mut stats = opts.stats.then(|| CollisionStats::new(&reader.header));
+    // Seeking: start from the last checkpoint at or before the time asked.
+    if let (Some(t), false, false) = (opts.at, opts.verify, opts.stats)
+        && let Some(&(offset, _)) = reader
+            .checkpoint_index()?
+            .iter()
+            .rev()
+            .find(|&&(_, time)| time <= t)
+    {
+        reader.seek(offset)?;
+    }
     let mut outcome = ReplayOutcome {
         records: 0,
         checkpoints_verified: 0,
