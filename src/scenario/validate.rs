@@ -70,6 +70,28 @@ fn remove_only<T>(
     }
 }
 
+/// A `name` at `path` (e.g. `materials[2]`) must be non-empty and not yet
+/// in `index`, which maps names to their position in `table`.
+fn check_unique_name<T: std::fmt::Display>(
+    ctx: &Ctx<'_>,
+    path: &str,
+    name: &str,
+    index: &HashMap<String, T>,
+    what: &str,
+    table: &str,
+) -> R<()> {
+    if name.trim().is_empty() {
+        return Err(ctx.err(format!("{path}.name"), "must not be empty"));
+    }
+    if let Some(j) = index.get(name) {
+        return Err(ctx.err(
+            format!("{path}.name"),
+            format!("duplicate {what} name '{name}' (also {table}[{j}])"),
+        ));
+    }
+    Ok(())
+}
+
 impl Ctx<'_> {
     /// A field error; the location is looked up in the text unless the field
     /// was set by `--set`.
@@ -196,15 +218,14 @@ pub(crate) fn validate(ctx: &Ctx, raw: RawScenario) -> R<Scenario> {
     let mut material_index: HashMap<String, u16> = HashMap::new();
     for (i, m) in raw.materials.iter().enumerate() {
         let path = format!("materials[{i}]");
-        if m.name.trim().is_empty() {
-            return Err(ctx.err(format!("{path}.name"), "must not be empty"));
-        }
-        if let Some(&j) = material_index.get(&m.name) {
-            return Err(ctx.err(
-                format!("{path}.name"),
-                format!("duplicate material name '{}' (also materials[{j}])", m.name),
-            ));
-        }
+        check_unique_name(
+            ctx,
+            &path,
+            &m.name,
+            &material_index,
+            "material",
+            "materials",
+        )?;
         let density = match m.density {
             Some(rho) => Some(ctx.positive(&format!("{path}.density"), rho)?),
             None => None,
@@ -275,18 +296,14 @@ pub(crate) fn validate(ctx: &Ctx, raw: RawScenario) -> R<Scenario> {
     let mut population_index: HashMap<String, usize> = HashMap::new();
     for (i, p) in raw.particles.iter().enumerate() {
         let path = format!("particles[{i}]");
-        if p.name.trim().is_empty() {
-            return Err(ctx.err(format!("{path}.name"), "must not be empty"));
-        }
-        if let Some(&j) = population_index.get(&p.name) {
-            return Err(ctx.err(
-                format!("{path}.name"),
-                format!(
-                    "duplicate population name '{}' (also particles[{j}])",
-                    p.name
-                ),
-            ));
-        }
+        check_unique_name(
+            ctx,
+            &path,
+            &p.name,
+            &population_index,
+            "population",
+            "particles",
+        )?;
         population_index.insert(p.name.clone(), i);
         let material = find_material(&format!("{path}.material"), &p.material)?;
         if materials[material as usize].density.is_none() {
