@@ -10,6 +10,7 @@ pub mod collision;
 pub mod domain;
 pub mod engine;
 pub mod eventlog;
+pub mod gas;
 pub mod geometry;
 pub mod initial;
 pub mod materials;

@@ -1,0 +1,9 @@
+//! The gas phase: volume-averaged Navier–Stokes equations on a staggered
+//! grid (seed 001 Eq. 7–10; seed 000 Eq. 39–48), drag closures (seed 001
+//! Eq. 3–6) and the particle–grid mapping (seed 001 Eq. 33–39).
+
+pub mod config;
+pub mod grid;
+
+pub use config::*;
+pub use grid::GridGeometry;
