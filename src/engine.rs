@@ -857,6 +857,19 @@ impl<Q: EventQueue> Engine<Q> {
         self.needs_prediction = true;
     }
 
+    /// Adds `dv[slot]` to the velocity of the particle in each active slot
+    /// (m/s): the per-particle kicks of gas drag and pressure gradient.
+    /// `dv` has one entry per slot ([`Engine::slots`]); free slots ignore theirs.
+    pub fn kick_slots(&mut self, dv: &[DVec3]) {
+        assert_eq!(dv.len(), self.kin.len(), "one kick per slot");
+        for ((k, &active), &d) in self.kin.iter_mut().zip(&self.active).zip(dv) {
+            if active {
+                k.vel += d;
+            }
+        }
+        self.needs_prediction = true;
+    }
+
     /// Re-predicts every particle from scratch.
     fn predict_all(&mut self) {
         self.queue.clear();

@@ -22,3 +22,4 @@ pub mod random;
 pub mod replay;
 pub mod run;
 pub mod scenario;
+pub mod vtk;

@@ -435,28 +435,19 @@ fn write_state_csv(particles: &[(u64, ReplayParticle)], path: &Path) -> anyhow::
 /// Legacy-format VTK polydata (ParaView): points with radius, velocity and
 /// angular velocity.
 fn write_state_vtk(particles: &[(u64, ReplayParticle)], path: &Path) -> anyhow::Result<()> {
-    let n = particles.len();
-    let mut s = format!(
-        "# vtk DataFile Version 3.0\nedpm replay\nASCII\nDATASET POLYDATA\nPOINTS {n} double\n"
-    );
-    for (_, p) in particles {
-        s.push_str(&format!(
-            "{:?} {:?} {:?}\n",
-            p.state.pos.x, p.state.pos.y, p.state.pos.z
-        ));
-    }
-    s.push_str(&format!(
-        "POINT_DATA {n}\nSCALARS radius double 1\nLOOKUP_TABLE default\n"
-    ));
-    for (_, p) in particles {
-        s.push_str(&format!("{:?}\n", p.radius));
-    }
-    for (name, get) in [("velocity", 0usize), ("angular_velocity", 1)] {
-        s.push_str(&format!("VECTORS {name} double\n"));
-        for (_, p) in particles {
-            let v = if get == 0 { p.state.vel } else { p.state.omega };
-            s.push_str(&format!("{:?} {:?} {:?}\n", v.x, v.y, v.z));
-        }
-    }
-    write_atomic(path, s.as_bytes())
+    let particles = particles
+        .iter()
+        .map(|(id, p)| {
+            Ok(crate::vtk::VtkParticle {
+                id: *id,
+                pos: p.state.pos,
+                vel: p.state.vel,
+                omega: p.state.omega,
+                radius: p.radius,
+                material: u16::try_from(p.material)
+                    .with_context(|| format!("particle {id}: material {}", p.material))?,
+            })
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    crate::vtk::write_particles(path, &particles)
 }

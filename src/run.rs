@@ -22,11 +22,13 @@ use crate::engine::{CollapseReport, Counters, Engine, EngineConfig, InletZone, N
 use crate::eventlog::{
     CheckpointHeader, LogHeader, LogRecord, LogWriter, RecordKind, checkpoint_particles,
 };
+use crate::gas::flow::{GAS_SERIES_HEADER, GasRun, GasTotals};
 use crate::materials::MaterialTable;
 use crate::output::{CHECKPOINT_VERSION, Checkpoint, CsvTable, write_atomic};
 use crate::particles::NewParticle;
 use crate::queue::{CalendarQueue, EventQueue, IndexedHeap, QueueKind, ReferenceQueue};
 use crate::scenario::{NeighbourChoice, Scenario, Splitting};
+use crate::vtk::{PvdSeries, VtkParticle};
 
 /// Entry point of `edpm run`.
 pub fn run_cli(
@@ -96,6 +98,8 @@ pub struct Summary {
     pub collapse_reports_total: usize,
     /// Size of the event log (bytes), when one was written.
     pub log_bytes: Option<u64>,
+    /// Gas-phase totals of a gas-coupled run.
+    pub gas: Option<GasTotals>,
 }
 
 /// The engine's view of the scenario's box.
@@ -426,7 +430,24 @@ fn simulate<Q: EventQueue>(
     let wall_start = Instant::now();
     let cpu_start = crate::bench::cpu_time();
     let mut engine = build_engine::<Q>(s)?;
+    let mut gas = GasRun::new(s);
+    if let Some(g) = gas.as_mut() {
+        if opts.log.is_some() {
+            anyhow::bail!(
+                "{}: event logs (--log) of gas-coupled runs are not supported yet: the per-particle drag kicks are not logged",
+                s.name
+            );
+        }
+        g.initialise(&engine);
+    }
     std::fs::create_dir_all(out_dir).with_context(|| format!("creating {}", out_dir.display()))?;
+    let mut snapshots = s
+        .output
+        .vtk_interval
+        .map(|interval| Snapshots::new(out_dir, interval, gas.is_some()));
+    if let Some(sn) = snapshots.as_mut() {
+        sn.write(&engine, gas.as_ref())?;
+    }
     let steps_total = (s.time.t_end / s.time.dt_flow - 1e-9).ceil().max(1.0) as u64;
     let mut log = match &opts.log {
         Some(path) => {
@@ -445,7 +466,7 @@ fn simulate<Q: EventQueue>(
     let gravity = s.domain.gravity;
     let mut feeder = InletFeeder::new(s);
     // Anything that acts at flow steps: forces (kicks) or inlet feeding.
-    let forces = gravity != DVec3::ZERO || feeder.is_some();
+    let forces = gravity != DVec3::ZERO || feeder.is_some() || gas.is_some();
     let bar = progress.then(|| {
         let bar = indicatif::ProgressBar::new(steps);
         bar.set_style(
@@ -455,6 +476,10 @@ fn simulate<Q: EventQueue>(
         bar
     });
     let mut series = CsvTable::new(&TIME_SERIES_HEADER);
+    let mut gas_series = CsvTable::new(&GAS_SERIES_HEADER);
+    if let Some(g) = gas.as_mut() {
+        g.sample_row(&mut gas_series);
+    }
     let mut last = engine.counters;
     let mut last_time = 0.0;
     let mut collapse_seen = 0;
@@ -468,7 +493,11 @@ fn simulate<Q: EventQueue>(
             Splitting::FirstOrder => 1.0,
             Splitting::SecondOrder => 0.5,
         };
-        if gravity != DVec3::ZERO {
+        if let Some(g) = gas.as_mut() {
+            // Drag, pressure gradient and gravity as one first-order kick.
+            g.step(&mut engine, gravity, dt)
+                .with_context(|| format!("{}: gas phase", s.name))?;
+        } else if gravity != DVec3::ZERO {
             let dv = gravity * (kick * dt);
             if let Some(log) = log.as_mut() {
                 log.drain(&mut engine)?;
@@ -496,7 +525,7 @@ fn simulate<Q: EventQueue>(
             }
             engine.end_flow_step();
         }
-        if s.time.splitting == Splitting::SecondOrder && gravity != DVec3::ZERO {
+        if s.time.splitting == Splitting::SecondOrder && gravity != DVec3::ZERO && gas.is_none() {
             let dv = gravity * (0.5 * dt);
             if let Some(log) = log.as_mut() {
                 log.drain(&mut engine)?;
@@ -513,11 +542,19 @@ fn simulate<Q: EventQueue>(
             let new_reports = engine.collapse_reports.len() - collapse_seen;
             collapse_seen = engine.collapse_reports.len();
             sample_interval_row(&engine, &mut series, &last, t - last_time, new_reports);
+            if let Some(g) = gas.as_mut() {
+                g.sample_row(&mut gas_series);
+            }
             last = engine.counters;
             last_time = t;
             while next_sample <= t * (1.0 + 1e-9) {
                 next_sample += s.output.sample_interval;
             }
+        }
+        if let Some(sn) = snapshots.as_mut()
+            && (t >= sn.next * (1.0 - 1e-9) || last_step)
+        {
+            sn.write(&engine, gas.as_ref())?;
         }
         if let Some(bar) = &bar {
             bar.set_position(step + 1);
@@ -542,6 +579,9 @@ fn simulate<Q: EventQueue>(
     };
     let cpu_seconds = crate::bench::cpu_time() - cpu_start;
     series.write(&out_dir.join("timeseries.csv"))?;
+    if gas.is_some() {
+        gas_series.write(&out_dir.join("gas_timeseries.csv"))?;
+    }
     let final_particles: Vec<NewParticle> = engine.particles().map(NewParticle::from).collect();
     Checkpoint {
         version: CHECKPOINT_VERSION,
@@ -575,10 +615,71 @@ fn simulate<Q: EventQueue>(
         collapse_reports: engine.collapse_reports.iter().take(1000).copied().collect(),
         collapse_reports_total: engine.collapse_reports.len(),
         log_bytes,
+        gas: gas.as_ref().map(|g| g.totals),
     };
     let json = serde_json::to_string_pretty(&summary).context("encoding summary")?;
     write_atomic(&out_dir.join("summary.json"), json.as_bytes())?;
     Ok(summary)
+}
+
+/// VTK snapshots of particles (and gas) with ParaView `.pvd` series.
+struct Snapshots {
+    dir: PathBuf,
+    interval: f64,
+    next: f64,
+    count: usize,
+    particles: PvdSeries,
+    gas: Option<PvdSeries>,
+}
+
+impl Snapshots {
+    fn new(out_dir: &Path, interval: f64, gas: bool) -> Self {
+        let dir = out_dir.join("vtk");
+        Snapshots {
+            particles: PvdSeries::new(out_dir.join("particles.pvd")),
+            gas: gas.then(|| PvdSeries::new(out_dir.join("gas.pvd"))),
+            dir,
+            interval,
+            next: 0.0,
+            count: 0,
+        }
+    }
+
+    fn write<Q: EventQueue>(
+        &mut self,
+        engine: &Engine<Q>,
+        gas: Option<&GasRun>,
+    ) -> anyhow::Result<()> {
+        std::fs::create_dir_all(&self.dir)
+            .with_context(|| format!("creating {}", self.dir.display()))?;
+        let t = engine.time();
+        let name = format!("particles_{:06}.vtp", self.count);
+        let particles: Vec<VtkParticle> = engine
+            .particles()
+            .map(|p| VtkParticle {
+                id: p.id,
+                pos: p.pos,
+                vel: p.vel,
+                omega: p.omega,
+                radius: p.radius,
+                material: p.material,
+            })
+            .collect();
+        crate::vtk::write_particles(&self.dir.join(&name), &particles)?;
+        self.particles.push(t, format!("vtk/{name}"));
+        self.particles.write()?;
+        if let (Some(series), Some(g)) = (self.gas.as_mut(), gas) {
+            let name = format!("gas_{:06}.vti", self.count);
+            g.write_vtk(&self.dir.join(&name))?;
+            series.push(t, format!("vtk/{name}"));
+            series.write()?;
+        }
+        self.count += 1;
+        while self.next <= t * (1.0 + 1e-9) {
+            self.next += self.interval;
+        }
+        Ok(())
+    }
 }
 
 /// One time-series row. Collision counts, dissipation and the collisional

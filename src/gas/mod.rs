@@ -3,7 +3,13 @@
 //! Eq. 3–6) and the particle–grid mapping (seed 001 Eq. 33–39).
 
 pub mod config;
+pub mod coupling;
+pub mod drag;
+pub mod flow;
 pub mod grid;
+pub mod linear;
+pub mod mapping;
+pub mod solver;
 
 pub use config::*;
 pub use grid::GridGeometry;

@@ -1,0 +1,211 @@
+//! The gas side of one flow step of `edpm run`, in the order of seed 001
+//! Sec. 4: gas fraction and drag coefficients from the particles, the gas
+//! step with implicit drag, then the drag, pressure-gradient and gravity
+//! kicks on the particles. The engine then processes the collisions of
+//! the step. Also the gas time series and VTK snapshots.
+
+use std::path::Path;
+
+use glam::DVec3;
+
+use super::coupling::Coupling;
+use super::grid::GridGeometry;
+use super::solver::{GasError, GasPhase};
+use crate::engine::Engine;
+use crate::output::CsvTable;
+use crate::queue::EventQueue;
+use crate::scenario::Scenario;
+
+/// Gas phase and coupling state of a run.
+pub struct GasRun {
+    pub gas: GasPhase,
+    pub coupling: Coupling,
+    /// Axis of gravity (the pressure-drop axis); `None` without gravity.
+    pressure_axis: Option<usize>,
+    pub totals: GasTotals,
+    interval: IntervalStats,
+}
+
+/// Totals over a run, for `summary.json`.
+#[derive(Clone, Copy, Debug, Default, serde::Serialize)]
+pub struct GasTotals {
+    pub steps: u64,
+    pub outer_iterations: u64,
+    pub linear_iterations: u64,
+    pub max_courant: f64,
+    pub max_mass_residual: f64,
+    pub clamped_cells: u64,
+    /// Drag impulse given to the particles and taken from the gas (N s).
+    pub drag_impulse_particles: [f64; 3],
+    pub drag_impulse_gas: [f64; 3],
+    /// CPU time in the gas solver and the coupling (s).
+    pub gas_cpu_seconds: f64,
+}
+
+#[derive(Clone, Copy, Debug, Default)]
+struct IntervalStats {
+    steps: u64,
+    outer: u64,
+    linear: u64,
+    courant: f64,
+    pressure_drop_sum: f64,
+}
+
+pub const GAS_SERIES_HEADER: [&str; 8] = [
+    "time_s",
+    "pressure_drop_Pa",
+    "pressure_drop_mean_Pa",
+    "gas_mass_kg",
+    "mean_outer_iterations",
+    "mean_linear_iterations",
+    "max_courant",
+    "min_gas_fraction",
+];
+
+impl GasRun {
+    pub fn new(s: &Scenario) -> Option<Self> {
+        let config = s.gas.clone()?;
+        let grid = GridGeometry::new(
+            s.domain.lo,
+            s.domain.hi,
+            config.cells,
+            std::array::from_fn(|a| s.boundaries.is_periodic(a)),
+            s.domain.planar,
+        );
+        let gravity = s.domain.gravity;
+        let pressure_axis = (gravity != DVec3::ZERO).then(|| {
+            (0..3)
+                .max_by(|&a, &b| gravity[a].abs().total_cmp(&gravity[b].abs()))
+                .unwrap_or(1)
+        });
+        Some(GasRun {
+            gas: GasPhase::new(grid, config, gravity),
+            coupling: Coupling::default(),
+            pressure_axis,
+            totals: GasTotals::default(),
+            interval: IntervalStats::default(),
+        })
+    }
+
+    /// Gas fraction from the initial particles, before the first step.
+    pub fn initialise<Q: EventQueue>(&mut self, engine: &Engine<Q>) {
+        if self.gas.config.two_way {
+            let eps = self
+                .coupling
+                .gas_fraction(&self.gas, engine.particles())
+                .to_vec();
+            self.gas.set_gas_fraction(&eps);
+            self.gas.set_gas_fraction(&eps);
+        }
+    }
+
+    /// Gas step and particle kicks for a flow step of `dt`; the engine must
+    /// be synchronised (right after [`Engine::end_flow_step`]).
+    pub fn step<Q: EventQueue>(
+        &mut self,
+        engine: &mut Engine<Q>,
+        gravity: DVec3,
+        dt: f64,
+    ) -> Result<(), GasError> {
+        let start = crate::bench::cpu_time();
+        let slots = (0..engine.slots()).map(|i| engine.particle(i));
+        self.coupling.prepare(&mut self.gas, slots.clone());
+        let stats = self.gas.step(dt)?;
+        let kicks = self.coupling.kicks(&self.gas, slots, gravity, dt).to_vec();
+        engine.kick_slots(&kicks);
+        let courant = self.gas.courant(dt);
+        let pressure_drop = self.pressure_drop();
+        let t = &mut self.totals;
+        t.steps += 1;
+        t.outer_iterations += stats.outer_iterations as u64;
+        t.linear_iterations += stats.linear_iterations as u64;
+        t.max_courant = t.max_courant.max(courant);
+        t.max_mass_residual = t.max_mass_residual.max(stats.mass_residual);
+        t.clamped_cells = self.coupling.clamped_cells;
+        t.drag_impulse_particles = self.coupling.drag_impulse_particles.to_array();
+        t.drag_impulse_gas = self.coupling.drag_impulse_gas.to_array();
+        let i = &mut self.interval;
+        i.steps += 1;
+        i.outer += stats.outer_iterations as u64;
+        i.linear += stats.linear_iterations as u64;
+        i.courant = i.courant.max(courant);
+        i.pressure_drop_sum += pressure_drop;
+        t.gas_cpu_seconds += crate::bench::cpu_time() - start;
+        Ok(())
+    }
+
+    /// Pressure drop along gravity (Pa): mean pressure of the cell layer at
+    /// the bottom minus that of the layer at the top.
+    pub fn pressure_drop(&self) -> f64 {
+        let Some(axis) = self.pressure_axis else {
+            return 0.0;
+        };
+        let grid = &self.gas.grid;
+        let n = grid.n[axis];
+        let mut bottom = 0.0;
+        let mut top = 0.0;
+        let mut count = 0.0;
+        for c in 0..grid.cells() {
+            let k = grid.cell_coords(c)[axis];
+            if k == 0 {
+                bottom += self.gas.pressure[c];
+                count += 1.0;
+            }
+            if k == n - 1 {
+                top += self.gas.pressure[c];
+            }
+        }
+        let drop = (bottom - top) / count;
+        if self.gas.gravity()[axis] > 0.0 {
+            -drop
+        } else {
+            drop
+        }
+    }
+
+    /// One row of `gas_timeseries.csv`; resets the interval statistics.
+    pub fn sample_row(&mut self, series: &mut CsvTable) {
+        let i = std::mem::take(&mut self.interval);
+        let steps = i.steps.max(1) as f64;
+        let min_eps = self
+            .gas
+            .gas_fraction
+            .iter()
+            .copied()
+            .fold(f64::INFINITY, f64::min);
+        series.row(&[
+            self.gas.time,
+            self.pressure_drop(),
+            if i.steps > 0 {
+                i.pressure_drop_sum / steps
+            } else {
+                self.pressure_drop()
+            },
+            self.gas.mass(),
+            i.outer as f64 / steps,
+            i.linear as f64 / steps,
+            i.courant,
+            min_eps,
+        ]);
+    }
+
+    /// Gas fields as legacy VTK for ParaView.
+    pub fn write_vtk(&self, path: &Path) -> anyhow::Result<()> {
+        let empty: &[f64] = &[];
+        let g = &self.gas;
+        crate::vtk::write_gas(
+            path,
+            &g.grid,
+            &crate::vtk::GasFields {
+                gas_fraction: &g.gas_fraction,
+                pressure: &g.pressure,
+                density: &g.density,
+                face_velocity: [
+                    &g.velocity[0],
+                    &g.velocity[1],
+                    if g.grid.planar { empty } else { &g.velocity[2] },
+                ],
+            },
+        )
+    }
+}

@@ -1,0 +1,299 @@
+//! The gas phase against references: Poiseuille flow (analytical),
+//! single-particle settling (Schiller–Naumann), a fixed bed (Ergun), and
+//! the exact drag momentum balance between gas and particles.
+
+use edpm::engine::ParticleView;
+use edpm::gas::coupling::Coupling;
+use edpm::gas::drag::{ergun_pressure_gradient, terminal_velocity};
+use edpm::gas::solver::GasPhase;
+use edpm::gas::{
+    DragLaw, GasConfig, GasFace, GasModel, GridGeometry, PlanarPorosity, PorosityMapping,
+    PressureSolverKind,
+};
+use edpm::run::run_scenario;
+use edpm::scenario::Scenario;
+use glam::DVec3;
+
+fn config(cells: [usize; 3], faces: [[GasFace; 2]; 3], model: GasModel, mu: f64) -> GasConfig {
+    GasConfig {
+        model,
+        viscosity: mu,
+        pressure: 101_325.0,
+        cells,
+        drag: DragLaw::ErgunWenYu,
+        porosity: PorosityMapping::VolumeWeighting,
+        planar_porosity: PlanarPorosity::Hoomans,
+        faces,
+        jets: Vec::new(),
+        initial_velocity: DVec3::ZERO,
+        pressure_solver: PressureSolverKind::Auto,
+        linear_tolerance: 1e-12,
+        mass_tolerance: 1e-11,
+        max_outer_iterations: 20,
+        two_way: true,
+    }
+}
+
+/// Steady plane Poiseuille flow driven by a body force g along x between
+/// no-slip plates at y = 0 and y = H: u(y) = g y (H − y) / (2 ν).
+fn poiseuille(cells: [usize; 3], planar: bool, solver: PressureSolverKind) -> f64 {
+    let height = 0.01;
+    let (rho, mu, g) = (1.0, 1e-3, 0.4);
+    let z_periodic = !planar;
+    let faces = [
+        [GasFace::Periodic; 2],
+        [GasFace::NoSlip; 2],
+        if planar {
+            [GasFace::FreeSlip; 2]
+        } else {
+            [GasFace::Periodic; 2]
+        },
+    ];
+    let mut cfg = config(cells, faces, GasModel::Incompressible { density: rho }, mu);
+    cfg.pressure_solver = solver;
+    let grid = GridGeometry::new(
+        DVec3::ZERO,
+        DVec3::new(0.004, height, 0.003),
+        cells,
+        [true, false, z_periodic],
+        planar,
+    );
+    let mut gas = GasPhase::new(grid, cfg, DVec3::new(g, 0.0, 0.0));
+    let h = height / cells[1] as f64;
+    // Explicit viscous stability: dt < h² ρ / (4 μ); run 8 diffusion times.
+    let dt = 0.2 * h * h * rho / mu;
+    let t_end = 8.0 * height * height * rho / mu / std::f64::consts::PI.powi(2);
+    let steps = (t_end / dt).ceil() as usize;
+    for _ in 0..steps {
+        let eps = gas.gas_fraction.clone();
+        gas.set_gas_fraction(&eps);
+        gas.step(dt).expect("gas step");
+    }
+    let u_max = g * height * height / (8.0 * mu / rho);
+    let mut worst: f64 = 0.0;
+    for j in 0..cells[1] {
+        let y = (j as f64 + 0.5) * h;
+        let exact = g * y * (height - y) / (2.0 * mu / rho);
+        for i in 0..cells[0] {
+            for k in 0..cells[2] {
+                let u = gas.velocity[0][gas.grid.face_index(0, [i, j, k])];
+                worst = worst.max((u - exact).abs() / u_max);
+            }
+        }
+    }
+    worst
+}
+
+#[test]
+fn poiseuille_profile_within_one_percent() {
+    // 16 cells across the channel. The no-slip ghost (mirror) condition is
+    // second order, so the error is O(h²) ≈ a few 1e-3 of the centre-line
+    // velocity; after 8 diffusion times the start-up transient has decayed
+    // to e^{-8} ≈ 3e-4. The issue asks for 1 %.
+    let planar = poiseuille([4, 16, 1], true, PressureSolverKind::Direct);
+    eprintln!("Poiseuille: max error / u_max = {planar:.3e} (planar)");
+    assert!(planar < 0.01, "planar: max error {planar:.2e} of u_max");
+    let solid = poiseuille([3, 16, 3], false, PressureSolverKind::Pcg);
+    assert!(solid < 0.01, "3D: max error {solid:.2e} of u_max");
+    // Both grids see the same flow: the 3D solution must match the 2D one.
+    assert!((planar - solid).abs() < 1e-3, "2D {planar:e} vs 3D {solid:e}");
+}
+
+fn particle(pos: DVec3, d: f64, rho_p: f64) -> ParticleView {
+    let r = 0.5 * d;
+    ParticleView {
+        id: 0,
+        pos,
+        vel: DVec3::ZERO,
+        omega: DVec3::ZERO,
+        radius: r,
+        mass: rho_p * 4.0 / 3.0 * std::f64::consts::PI * r.powi(3),
+        material: 0,
+    }
+}
+
+/// A fixed bed of a simple cubic lattice (spacing a, diameter d) in a
+/// column with inflow at the bottom and an outlet at the top; particles do
+/// not move. Returns (measured ∇p, Ergun ∇p) in Pa/m.
+fn fixed_bed(u_superficial: f64) -> (f64, f64) {
+    let (a, d) = (1e-3, 0.98e-3);
+    let (nx, ny) = (4, 24);
+    // Two lattice spacings per cell: every cell holds exactly 8 particles.
+    let cells = [nx / 2, ny / 2, nx / 2];
+    let faces = [
+        [GasFace::Periodic; 2],
+        [
+            GasFace::Inflow {
+                velocity: u_superficial,
+            },
+            GasFace::Outlet,
+        ],
+        [GasFace::Periodic; 2],
+    ];
+    let mu = 1.8e-5;
+    let model = GasModel::Incompressible { density: 1.2 };
+    let mut cfg = config(cells, faces, model, mu);
+    cfg.initial_velocity = DVec3::new(0.0, u_superficial, 0.0);
+    let grid = GridGeometry::new(
+        DVec3::ZERO,
+        DVec3::new(nx as f64 * a, ny as f64 * a, nx as f64 * a),
+        cells,
+        [true, false, true],
+        false,
+    );
+    let mut gas = GasPhase::new(grid, cfg, DVec3::ZERO);
+    let mut particles = Vec::new();
+    for i in 0..nx {
+        for j in 0..ny {
+            for k in 0..nx {
+                let pos = (DVec3::new(i as f64, j as f64, k as f64) + 0.5) * a;
+                particles.push(Some(particle(pos, d, 2500.0)));
+            }
+        }
+    }
+    let mut coupling = Coupling::default();
+    let dt = 1e-4;
+    for _ in 0..3000 {
+        coupling.prepare(&mut gas, particles.iter().copied());
+        gas.step(dt).expect("gas step");
+    }
+    let eps_g = 1.0 - std::f64::consts::PI * d.powi(3) / (6.0 * a.powi(3));
+    assert!((gas.gas_fraction[5] - eps_g).abs() < 1e-12);
+    // Pressure gradient between cell layers 3 and 8 (away from the ends).
+    let h = 2.0 * a;
+    let p = |j: usize| gas.pressure[gas.grid.cell_index([0, j, 0])];
+    let measured = (p(3) - p(8)) / (5.0 * h);
+    let ergun = ergun_pressure_gradient(u_superficial, eps_g, d, 1.2, mu);
+    (measured, ergun)
+}
+
+#[test]
+fn fixed_bed_pressure_drop_follows_ergun() {
+    // Uniform gas fraction, so the steady gas momentum balance reduces to
+    // ε ∇p = −β u exactly and the Ergun drag law reproduces Ergun's
+    // equation; what remains is the iteration to steady state and the
+    // convection of a uniform flow (zero). 3 % is the issue's tolerance;
+    // the solver should be far closer.
+    for u in [0.05, 0.2, 0.5, 1.0, 2.0] {
+        let (measured, ergun) = fixed_bed(u);
+        let err = (measured - ergun).abs() / ergun;
+        eprintln!("fixed bed U = {u} m/s: {measured:.2} Pa/m vs Ergun {ergun:.2} Pa/m");
+        assert!(
+            err < 0.03,
+            "U = {u} m/s: ∇p {measured:.1} Pa/m, Ergun {ergun:.1} Pa/m ({err:.2e})"
+        );
+    }
+}
+
+#[test]
+fn drag_momentum_balances_exactly() {
+    // Random particles with random velocities in a gas with a jet-driven
+    // flow: the drag impulse the particles receive must equal what the gas
+    // loses, to round-off (same weights for interpolation and distribution).
+    let faces = [
+        [GasFace::NoSlip; 2],
+        [GasFace::Inflow { velocity: 1.0 }, GasFace::Outlet],
+        [GasFace::FreeSlip; 2],
+    ];
+    let mut cfg = config([6, 10, 1], faces, GasModel::IdealGas {
+        molar_mass: 0.029,
+        temperature: 293.0,
+    }, 1.8e-5);
+    cfg.drag = DragLaw::Beetstra;
+    let grid = GridGeometry::new(
+        DVec3::ZERO,
+        DVec3::new(0.06, 0.1, 0.004),
+        [6, 10, 1],
+        [false; 3],
+        true,
+    );
+    let mut gas = GasPhase::new(grid, cfg, DVec3::new(0.0, -9.81, 0.0));
+    let mut state = 12345u64;
+    let mut next = || {
+        state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        (state >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let particles: Vec<Option<ParticleView>> = (0..300)
+        .map(|i| {
+            if i % 7 == 3 {
+                return None;
+            }
+            let mut p = particle(
+                DVec3::new(0.06 * next(), 0.1 * next(), 0.002),
+                0.004,
+                2500.0,
+            );
+            p.vel = DVec3::new(next() - 0.5, 2.0 * next() - 1.0, 0.0);
+            Some(p)
+        })
+        .collect();
+    let mut coupling = Coupling::default();
+    for _ in 0..20 {
+        coupling.prepare(&mut gas, particles.iter().copied());
+        gas.step(1e-4).expect("gas step");
+        coupling.kicks(&gas, particles.iter().copied(), DVec3::ZERO, 1e-4);
+    }
+    let to_particles = coupling.drag_impulse_particles;
+    let from_gas = coupling.drag_impulse_gas;
+    let scale = to_particles.length();
+    eprintln!("drag impulse: particles {to_particles:?}, gas {from_gas:?}");
+    assert!(scale > 0.0);
+    // Round-off of a few thousand products: relative 1e-12.
+    assert!(
+        (to_particles - from_gas).length() < 1e-12 * scale,
+        "particles {to_particles:?} vs gas {from_gas:?}"
+    );
+}
+
+#[test]
+fn single_particle_settles_at_schiller_naumann_terminal_velocity() {
+    // A 100 µm glass sphere falls through air in a closed column (outlet at
+    // the top); cells are 1e4 particle volumes, so the gas fraction stays
+    // 1 − 5e-7 and the gas barely moves. Relaxation time v_t/g ≈ 0.05 s, so
+    // after 0.4 s the velocity is within e^{-8} of terminal.
+    let text = r#"
+seed = 1
+[domain]
+lo = [0.0, 0.0, 0.0]
+hi = [0.01, 0.3, 0.01]
+gravity = [0.0, -9.81, 0.0]
+[boundaries]
+wall_material = "wall"
+[[materials]]
+name = "glass"
+density = 2500.0
+[[materials]]
+name = "wall"
+[collisions]
+default = { e_n = 1.0, beta_0 = 0.0, mu = 0.0 }
+[[particles]]
+name = "p"
+material = "glass"
+count = 1
+diameter = 100e-6
+placement = "random"
+region = { lo = [0.004, 0.27, 0.004], hi = [0.006, 0.28, 0.006] }
+[time]
+t_end = 0.4
+dt_flow = 1e-4
+[output]
+sample_interval = 0.1
+[gas]
+cells = [1, 30, 1]
+[gas.faces]
+y_hi = "outlet"
+"#;
+    let s = Scenario::from_str_named(text, "settling.toml", &[]).unwrap_or_else(|e| panic!("{e}"));
+    let dir = std::env::temp_dir().join(format!("edpm-settling-{}", std::process::id()));
+    run_scenario(&s, &dir, false).expect("run");
+    let csv = std::fs::read_to_string(dir.join("final_particles.csv")).expect("particles");
+    let row: Vec<f64> = csv.lines().nth(1).expect("one particle").split(',').map(|x| x.parse().unwrap()).collect();
+    let v = -row[7];
+    let g = s.gas.as_ref().unwrap();
+    let rho_g = g.model.density(g.pressure);
+    let vt = terminal_velocity(100e-6, 2500.0, rho_g, g.viscosity, 9.81);
+    let err = (v - vt).abs() / vt;
+    eprintln!("settling: {v:.6} m/s vs Schiller–Naumann {vt:.6} m/s");
+    assert!(err < 0.01, "settling {v:.5} m/s vs Schiller–Naumann {vt:.5} m/s ({err:.2e})");
+    let _ = std::fs::remove_dir_all(&dir);
+}
