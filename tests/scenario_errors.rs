@@ -680,6 +680,617 @@ fn populations_required_unless_checkpoint() {
     );
 }
 
+// ---------------------------------------------------------------- gas
+
+/// `[gas]` for BASE (x, y walls; z periodic; 20 x 40 x 20 mm): fluidised
+/// from y_lo, outlet at y_hi.
+const GAS: &str = r#"
+[gas]
+cells = [4, 8, 4]
+
+[gas.faces]
+y_lo = { inflow = 0.5 }
+y_hi = "outlet"
+"#;
+
+/// BASE in planar mode (bed depth 1 mm) with a planar `[gas]`.
+fn planar_gas_text() -> String {
+    replace("z = \"periodic\"\n", "").replace(
+        "hi = [0.02, 0.04, 0.02]",
+        "hi = [0.02, 0.04, 0.001]\nplanar = true",
+    ) + &GAS.replace("cells = [4, 8, 4]", "cells = [4, 8, 1]")
+}
+
+fn gas_text() -> String {
+    format!("{BASE}{GAS}")
+}
+
+/// BASE + GAS with `--set` overrides.
+fn with_gas(overrides: &[&str]) -> Result<Scenario, ScenarioError> {
+    let o: Vec<String> = overrides.iter().map(|s| s.to_string()).collect();
+    Scenario::from_str_named(&gas_text(), "test.toml", &o)
+}
+
+/// A `gas.jets=[...]` override with one inline table per entry.
+fn jets(entries: &[&str]) -> String {
+    let tables: Vec<String> = entries.iter().map(|e| format!("{{ {e} }}")).collect();
+    format!("gas.jets=[{}]", tables.join(", "))
+}
+
+#[track_caller]
+fn assert_close(a: DVec3, b: DVec3) {
+    assert!((a - b).abs().max_element() < 1e-15, "{a} vs {b}");
+}
+
+#[test]
+fn gas_section_resolves_defaults_and_values() {
+    use edpm::gas::{
+        DragLaw, GasFace, GasModel, PlanarPorosity, PorosityMapping, PressureSolverKind,
+    };
+    // Without [gas] there is no gas phase and no VTK output.
+    let s = parse(BASE).unwrap();
+    assert!(s.gas.is_none());
+    assert_eq!(s.output.vtk_interval, None);
+
+    let s = parse(&gas_text()).unwrap();
+    let g = s.gas.as_ref().unwrap();
+    assert_eq!(
+        g.model,
+        GasModel::IdealGas {
+            molar_mass: 0.02896,
+            temperature: 293.15
+        }
+    );
+    assert_eq!(g.viscosity, 1.8e-5);
+    assert_eq!(g.pressure, 101325.0);
+    assert_eq!(g.cells, [4, 8, 4]);
+    assert_eq!(g.drag, DragLaw::ErgunWenYu);
+    assert_eq!(g.porosity, PorosityMapping::VolumeWeighting);
+    assert_eq!(g.planar_porosity, PlanarPorosity::Hoomans);
+    assert_eq!(
+        g.faces,
+        [
+            [GasFace::NoSlip, GasFace::NoSlip],
+            [GasFace::Inflow { velocity: 0.5 }, GasFace::Outlet],
+            [GasFace::Periodic, GasFace::Periodic],
+        ]
+    );
+    assert!(g.jets.is_empty());
+    assert_eq!(g.initial_velocity, DVec3::ZERO);
+    assert_eq!(g.pressure_solver, PressureSolverKind::Auto);
+    assert_eq!(g.linear_tolerance, 1e-10);
+    assert_eq!(g.mass_tolerance, 1e-10);
+    assert_eq!(g.max_outer_iterations, 20);
+    assert!(g.two_way);
+    assert_eq!(s.output.vtk_interval, None);
+    // The flow step is not changed by the gas.
+    assert_eq!(s.time.dt_flow, 1e-4);
+
+    // Every key given; a steady jet and a pulsed jet on the inflow face.
+    let text = gas_text().replace(
+        "cells = [4, 8, 4]",
+        "model = \"incompressible\"\ndensity = 1.0\nviscosity = 2e-5\npressure = 2e5\n\
+         cells = [4, 8, 4]\ndrag = \"beetstra\"\nporosity = \"porous-cube\"\ncube_factor = 2.5\n\
+         initial_velocity = [0.0, 0.3, 0.1]\npressure_solver = \"direct\"\n\
+         linear_tolerance = 1e-12\nmass_tolerance = 1e-8\nmax_outer_iterations = 50\n\
+         coupling = \"one-way\"",
+    ) + "x_lo = \"free-slip\"\n\n[[gas.jets]]\nface = \"y_lo\"\ncentre = [0.005, 0.0, 0.01]\n\
+         size = [0.004, 0.0, 0.006]\nvelocity = 20.0\n\n[[gas.jets]]\nface = \"y_lo\"\n\
+         centre = [0.015, 0.0, 0.01]\nsize = [0.004, 1.0, 0.02]\nvelocity = 42.0\nstart = 0.1\n\
+         period = 0.2\non_time = 0.05\n\n[output]\nvtk_interval = 0.05\n";
+    let s = parse(&text).unwrap();
+    let g = s.gas.as_ref().unwrap();
+    assert_eq!(g.model, GasModel::Incompressible { density: 1.0 });
+    assert_eq!((g.viscosity, g.pressure), (2e-5, 2e5));
+    assert_eq!(g.drag, DragLaw::Beetstra);
+    assert_eq!(g.porosity, PorosityMapping::PorousCube { factor: 2.5 });
+    assert_eq!(g.initial_velocity, DVec3::new(0.0, 0.3, 0.1));
+    assert_eq!(g.pressure_solver, PressureSolverKind::Direct);
+    assert_eq!((g.linear_tolerance, g.mass_tolerance), (1e-12, 1e-8));
+    assert_eq!(g.max_outer_iterations, 50);
+    assert!(!g.two_way);
+    assert_eq!(g.faces[0], [GasFace::FreeSlip, GasFace::NoSlip]);
+    assert_eq!(s.output.vtk_interval, Some(0.05));
+    assert_eq!(g.jets.len(), 2);
+    let steady = &g.jets[0];
+    assert_eq!((steady.axis, steady.hi), (1, false));
+    assert_close(steady.lo, DVec3::new(0.003, 0.0, 0.007));
+    assert_close(steady.hi_corner, DVec3::new(0.007, 0.0, 0.013));
+    assert_eq!(
+        (steady.velocity, steady.start, steady.period),
+        (20.0, 0.0, 0.0)
+    );
+    assert!(steady.is_on(0.0) && steady.is_on(1.0));
+    // Spans the whole z extent of the face; the normal component of size
+    // (1.0) is ignored.
+    let pulsed = &g.jets[1];
+    assert_eq!((pulsed.axis, pulsed.hi), (1, false));
+    assert_close(pulsed.lo, DVec3::new(0.013, 0.0, 0.0));
+    assert_close(pulsed.hi_corner, DVec3::new(0.017, 0.0, 0.02));
+    assert_eq!(
+        (pulsed.velocity, pulsed.start, pulsed.period, pulsed.on_time),
+        (42.0, 0.1, 0.2, 0.05)
+    );
+    assert!(!pulsed.is_on(0.05) && pulsed.is_on(0.12) && !pulsed.is_on(0.2));
+    assert!(pulsed.is_on(0.31));
+
+    // A jet on a wall face (x_hi) gets the face coordinate along x.
+    let s = with_gas(&[&jets(&[
+        "face = \"x_hi\", centre = [0.0, 0.01, 0.01], size = [0.0, 0.002, 0.02], velocity = 5.0",
+    ])])
+    .unwrap();
+    let j = &s.gas.as_ref().unwrap().jets[0];
+    assert_eq!((j.axis, j.hi), (0, true));
+    assert_close(j.lo, DVec3::new(0.02, 0.009, 0.0));
+    assert_close(j.hi_corner, DVec3::new(0.02, 0.011, 0.02));
+
+    // Planar: z faces free-slip, jets span the bed depth, planar_porosity allowed.
+    let text = planar_gas_text().replace(
+        "cells = [4, 8, 1]",
+        "cells = [4, 8, 1]\nplanar_porosity = \"slab\"",
+    );
+    let s = Scenario::from_str_named(
+        &text,
+        "test.toml",
+        &[jets(&[
+            "face = \"y_lo\", centre = [0.01, 0.0, 123.0], size = [0.002, 0.0, -1.0], velocity = 30.0",
+        ])],
+    )
+    .unwrap();
+    let g = s.gas.as_ref().unwrap();
+    assert_eq!(g.planar_porosity, PlanarPorosity::Slab);
+    assert_eq!(g.faces[2], [GasFace::FreeSlip, GasFace::FreeSlip]);
+    assert_close(g.jets[0].lo, DVec3::new(0.009, 0.0, 0.0));
+    assert_close(g.jets[0].hi_corner, DVec3::new(0.011, 0.0, 0.001));
+
+    // A closed box (no inflow, no outlet) is fine; so is a closed box of
+    // incompressible gas. vtk_interval is clamped to t_end.
+    let closed = format!("{BASE}\n[gas]\ncells = [4, 8, 4]\nmodel = \"incompressible\"\n");
+    let s =
+        Scenario::from_str_named(&closed, "test.toml", &["output.vtk_interval=9".into()]).unwrap();
+    assert_eq!(s.gas.unwrap().faces[1], [GasFace::NoSlip; 2]);
+    assert_eq!(s.output.vtk_interval, Some(s.time.t_end));
+    assert!(parse(&format!("{BASE}\n[gas]\ncells = [4, 8, 4]\n")).is_ok());
+    // vtk_interval also without [gas] (particles only).
+    assert_eq!(
+        with(&["output.vtk_interval=0.01"])
+            .unwrap()
+            .output
+            .vtk_interval,
+        Some(0.01)
+    );
+}
+
+#[test]
+fn gas_unknown_keys_and_bad_values() {
+    let text = gas_text().replace("cells = [4, 8, 4]", "cells = [4, 8, 4]\nvelocity = 1.0");
+    let msg = expect_field(parse(&text), "gas.velocity", "unknown key `velocity`");
+    let line = text
+        .lines()
+        .position(|l| l.starts_with("velocity"))
+        .unwrap()
+        + 1;
+    assert!(msg.ends_with(&format!("(line {line}, column 1)")), "{msg}");
+    expect_field(
+        parse(&format!("{}top = \"outlet\"\n", gas_text())),
+        "gas.faces.top",
+        "unknown key `top`",
+    );
+    expect_field(
+        with_gas(&[&jets(&[
+            "face = \"y_lo\", centre = [0.01, 0, 0.01], size = [0.002, 0, 0.002], velocity = 5.0, angle = 3.0",
+        ])]),
+        "gas.jets[0].angle",
+        "unknown key `angle`",
+    );
+    expect_field(
+        with_gas(&["gas.model=perfect"]),
+        "gas.model",
+        "invalid value `perfect`",
+    );
+    expect_field(
+        with_gas(&["gas.drag=stokes"]),
+        "gas.drag",
+        "invalid value `stokes`",
+    );
+    expect_field(
+        with_gas(&["gas.faces.y_hi=exit"]),
+        "gas.faces.y_hi",
+        "invalid value `exit`",
+    );
+    expect_field(
+        with_gas(&["gas.faces.y_lo=inflow"]),
+        "gas.faces.y_lo",
+        "an inflow face needs its velocity: write { inflow = <velocity in m/s> }",
+    );
+    expect_field(
+        with_gas(&["gas.faces.y_lo={ outflow = 1 }"]),
+        "gas.faces.y_lo",
+        "unknown key `outflow`",
+    );
+    expect_field(
+        with_gas(&["gas.faces.y_lo={ inflow = 1, outlet = 2 }"]),
+        "gas.faces.y_lo",
+        "takes only `inflow`",
+    );
+    expect_field(
+        with_gas(&["gas.faces.y_lo=5"]),
+        "gas.faces.y_lo",
+        "expected \"no-slip\", \"free-slip\", \"outlet\" or { inflow = <velocity in m/s> }",
+    );
+    expect_field(
+        with_gas(&["gas.coupling=three-way"]),
+        "gas.coupling",
+        "invalid value `three-way`",
+    );
+    expect_field(
+        parse(&gas_text().replace("cells = [4, 8, 4]\n", "")),
+        "gas.cells",
+        "required key is missing",
+    );
+    expect_field(
+        with_gas(&[&jets(&[
+            "face = \"y_lo\", size = [0.002, 0, 0.002], velocity = 5.0",
+        ])]),
+        "gas.jets[0].centre",
+        "required key is missing",
+    );
+    // Ranges name the range and the unit.
+    let cases: [(&str, &str, &str); 12] = [
+        (
+            "gas.viscosity=0",
+            "gas.viscosity",
+            "must be in (0.0, 10.0] Pa s, got 0.0",
+        ),
+        ("gas.pressure=-1", "gas.pressure", "(0.0, 1000000000.0] Pa"),
+        (
+            "gas.molar_mass=2",
+            "gas.molar_mass",
+            "(0.0, 1.0] kg/mol, got 2.0",
+        ),
+        ("gas.temperature=nan", "gas.temperature", "(0.0, 10000.0] K"),
+        (
+            "gas.linear_tolerance=0.1",
+            "gas.linear_tolerance",
+            "[1e-15, 0.01]",
+        ),
+        (
+            "gas.mass_tolerance=1e-20",
+            "gas.mass_tolerance",
+            "[1e-15, 0.01]",
+        ),
+        (
+            "gas.max_outer_iterations=0",
+            "gas.max_outer_iterations",
+            "integer in [1, 1000], got 0",
+        ),
+        (
+            "gas.max_outer_iterations=2.5",
+            "gas.max_outer_iterations",
+            "integer in [1, 1000]",
+        ),
+        (
+            "gas.initial_velocity=[2000, 0, 0]",
+            "gas.initial_velocity[0]",
+            "[-1000.0, 1000.0] m/s",
+        ),
+        (
+            "gas.initial_velocity=[0, inf, 0]",
+            "gas.initial_velocity[1]",
+            "must be finite",
+        ),
+        (
+            "gas.faces.y_lo={ inflow = -1 }",
+            "gas.faces.y_lo.inflow",
+            "[0.0, 1000.0] m/s, got -1.0",
+        ),
+        (
+            "gas.faces.y_lo={ inflow = 2000 }",
+            "gas.faces.y_lo.inflow",
+            "[0.0, 1000.0] m/s",
+        ),
+    ];
+    for (o, path, phrase) in cases {
+        expect_field(with_gas(&[o]), path, phrase);
+    }
+    let msg = expect_field(
+        parse(&gas_text().replace("y_lo = { inflow = 0.5 }", "y_lo = { inflow = -0.5 }")),
+        "gas.faces.y_lo.inflow",
+        "got -0.5",
+    );
+    assert!(msg.contains("(line "), "{msg}");
+}
+
+#[test]
+fn gas_model_specific_keys() {
+    let msg = expect_field(
+        with_gas(&["gas.density=1.2"]),
+        "gas.density",
+        "only given with gas.model = \"incompressible\"",
+    );
+    assert!(msg.contains("not allowed"), "{msg}");
+    expect_field(
+        with_gas(&["gas.model=incompressible", "gas.molar_mass=0.03"]),
+        "gas.molar_mass",
+        "only used with gas.model = \"ideal-gas\"",
+    );
+    expect_field(
+        with_gas(&["gas.model=incompressible", "gas.temperature=300"]),
+        "gas.temperature",
+        "only used with gas.model = \"ideal-gas\"",
+    );
+    expect_field(
+        with_gas(&["gas.model=incompressible", "gas.density=0"]),
+        "gas.density",
+        "must be in (0.0, 10000.0] kg/m³, got 0.0",
+    );
+}
+
+#[test]
+fn gas_cells() {
+    expect_field(
+        with_gas(&["gas.cells=[4, 8]"]),
+        "gas.cells",
+        "must be 3 integers [nx, ny, nz], got 2 entries",
+    );
+    let msg = expect_field(
+        parse(&gas_text().replace("cells = [4, 8, 4]", "cells = [4, 0, 4]")),
+        "gas.cells[1]",
+        "must be an integer in [1, 4096], got 0",
+    );
+    assert!(msg.contains("(line "), "{msg}");
+    expect_field(
+        with_gas(&["gas.cells=[4, 8.5, 4]"]),
+        "gas.cells[1]",
+        "integer in [1, 4096]",
+    );
+    expect_field(
+        with_gas(&["gas.cells=[5000, 8, 4]"]),
+        "gas.cells[0]",
+        "integer in [1, 4096], got 5000",
+    );
+    expect_field(
+        with_gas(&["gas.cells=[4096, 4096, 4]"]),
+        "gas.cells",
+        "at most 50000000 cells in total, got 67108864",
+    );
+    // Periodic z axis: at least 3 cells.
+    expect_field(
+        with_gas(&["gas.cells=[4, 8, 2]"]),
+        "gas.cells[2]",
+        "must be >= 3 on a periodic axis (boundaries.z = \"periodic\"), got 2",
+    );
+    // Planar: one cell over the bed depth.
+    expect_field(
+        parse(&planar_gas_text().replace("cells = [4, 8, 1]", "cells = [4, 8, 2]")),
+        "gas.cells[2]",
+        "must be 1 in planar mode",
+    );
+}
+
+#[test]
+fn gas_porosity_keys() {
+    expect_field(
+        with_gas(&["gas.cube_factor=3"]),
+        "gas.cube_factor",
+        "only used with gas.porosity = \"porous-cube\"",
+    );
+    expect_field(
+        with_gas(&["gas.porosity=porous-cube", "gas.cube_factor=0.5"]),
+        "gas.cube_factor",
+        "must be in [0.806, 10.0] particle diameters, got 0.5",
+    );
+    let s = with_gas(&["gas.porosity=porous-cube"]).unwrap();
+    assert_eq!(
+        s.gas.unwrap().porosity,
+        edpm::gas::PorosityMapping::PorousCube { factor: 3.0 }
+    );
+    expect_field(
+        with_gas(&["gas.planar_porosity=slab"]),
+        "gas.planar_porosity",
+        "only used in planar mode (domain.planar = true)",
+    );
+}
+
+#[test]
+fn gas_faces_follow_the_particle_boundaries() {
+    let msg = expect_field(
+        parse(&format!("{}z_lo = \"no-slip\"\n", gas_text())),
+        "gas.faces.z_lo",
+        "the z axis is periodic (boundaries.z = \"periodic\")",
+    );
+    assert!(msg.contains("must not be given"), "{msg}");
+    expect_field(
+        parse(&format!("{}z_hi = \"free-slip\"\n", planar_gas_text())),
+        "gas.faces.z_hi",
+        "must not be given in planar mode",
+    );
+    // Gas enters but cannot leave.
+    let msg = expect_field(
+        parse(&gas_text().replace("y_hi = \"outlet\"\n", "")),
+        "gas.faces",
+        "at least one face must be \"outlet\"",
+    );
+    assert!(msg.contains("gas.faces.y_lo = { inflow = 0.5 }"), "{msg}");
+    expect_field(
+        Scenario::from_str_named(
+            &format!("{BASE}\n[gas]\ncells = [4, 8, 4]\n"),
+            "test.toml",
+            &[jets(&[JET])],
+        ),
+        "gas.faces",
+        "found [[gas.jets]]",
+    );
+    // An outlet or inflow where the particles have a wall is fine (the wall
+    // is a distributor plate or screen for the particles).
+    let s = with_gas(&["gas.faces.x_hi=outlet"]).unwrap();
+    assert_eq!(s.gas.unwrap().faces[0][1], edpm::gas::GasFace::Outlet);
+}
+
+const JET: &str =
+    "face = \"y_lo\", centre = [0.005, 0.0, 0.01], size = [0.004, 0.0, 0.004], velocity = 20.0";
+
+#[test]
+fn gas_jet_faces() {
+    let jet = |face: &str| jets(&[&JET.replace("face = \"y_lo\"", &format!("face = \"{face}\""))]);
+    expect_field(
+        with_gas(&[&jet("y_hi")]),
+        "gas.jets[0].face",
+        "a jet cannot be on an outlet face (gas.faces.y_hi = \"outlet\")",
+    );
+    expect_field(
+        with_gas(&[&jet("z_lo")]),
+        "gas.jets[0].face",
+        "the z axis is periodic",
+    );
+    expect_field(
+        Scenario::from_str_named(&planar_gas_text(), "test.toml", &[jet("z_hi")]),
+        "gas.jets[0].face",
+        "a jet cannot be on z_hi in planar mode",
+    );
+    expect_field(
+        with_gas(&[&jet("y_low")]),
+        "gas.jets[0].face",
+        "invalid value `y_low`",
+    );
+}
+
+#[test]
+fn gas_jet_patch_must_lie_on_the_face() {
+    let jet = |centre: &str, size: &str| {
+        jets(&[&format!(
+            "face = \"y_lo\", centre = {centre}, size = {size}, velocity = 20.0"
+        )])
+    };
+    let msg = expect_field(
+        with_gas(&[&jet("[0.019, 0.0, 0.01]", "[0.004, 0.0, 0.004]")]),
+        "gas.jets[0].size[0]",
+        "must lie within face y_lo, [0.0, 0.02] m",
+    );
+    assert!(msg.contains("centre ± size/2 = [0.017, 0.02"), "{msg}");
+    expect_field(
+        with_gas(&[&jet("[0.01, 0.0, 0.001]", "[0.004, 0.0, 0.004]")]),
+        "gas.jets[0].size[2]",
+        "must lie within face y_lo",
+    );
+    expect_field(
+        with_gas(&[&jet("[0.03, 0.0, 0.01]", "[0.004, 0.0, 0.004]")]),
+        "gas.jets[0].centre[0]",
+        "must lie on face y_lo: in [0.0, 0.02] m (x axis), got 0.03",
+    );
+    expect_field(
+        with_gas(&[&jet("[0.01, 0.0, 0.01]", "[0.0, 0.0, 0.004]")]),
+        "gas.jets[0].size[0]",
+        "must be > 0 m",
+    );
+    expect_field(
+        with_gas(&[&jets(&[&JET.replace("velocity = 20.0", "velocity = 0.0")])]),
+        "gas.jets[0].velocity",
+        "must be in (0.0, 1000.0] m/s, got 0.0",
+    );
+    // A full-face jet (centre ± size/2 exactly at the edges) is fine.
+    let s = with_gas(&[&jet("[0.01, 0.0, 0.01]", "[0.02, 0.0, 0.02]")]).unwrap();
+    let j = &s.gas.unwrap().jets[0];
+    assert_close(j.lo, DVec3::ZERO);
+    assert_close(j.hi_corner, DVec3::new(0.02, 0.0, 0.02));
+}
+
+#[test]
+fn gas_jet_pulsing() {
+    let jet = |extra: &str| jets(&[&format!("{JET}, {extra}")]);
+    expect_field(
+        with_gas(&[&jet("period = 0.1, on_time = 0.2")]),
+        "gas.jets[0].on_time",
+        "must be in (0.0, 0.1] s, got 0.2",
+    );
+    expect_field(
+        with_gas(&[&jet("period = 0.1, on_time = 0.0")]),
+        "gas.jets[0].on_time",
+        "must be in (0.0, 0.1] s",
+    );
+    expect_field(
+        with_gas(&[&jet("on_time = 0.05")]),
+        "gas.jets[0].on_time",
+        "not allowed without a period > 0",
+    );
+    expect_field(
+        with_gas(&[&jet("period = 0.0, on_time = 0.05")]),
+        "gas.jets[0].on_time",
+        "not allowed without a period > 0",
+    );
+    expect_field(
+        with_gas(&[&jet("period = 0.1")]),
+        "gas.jets[0].on_time",
+        "required key is missing (a pulsed jet: period = 0.1 > 0)",
+    );
+    expect_field(
+        with_gas(&[&jet("period = -0.1")]),
+        "gas.jets[0].period",
+        "must be >= 0",
+    );
+    expect_field(
+        with_gas(&[&jet("start = -1")]),
+        "gas.jets[0].start",
+        "must be >= 0",
+    );
+    let msg = expect_field(
+        parse(&format!(
+            "{}\n[[gas.jets]]\nface = \"y_lo\"\ncentre = [0.01, 0.0, 0.01]\nsize = [0.002, 0.0, 0.002]\nvelocity = 10.0\nperiod = 0.1\non_time = 0.5\n",
+            gas_text()
+        )),
+        "gas.jets[0].on_time",
+        "got 0.5",
+    );
+    assert!(msg.contains("(line "), "{msg}");
+}
+
+#[test]
+fn gas_jets_must_not_overlap() {
+    let second = "face = \"y_lo\", centre = [0.007, 0.0, 0.012], size = [0.004, 0.0, 0.004], velocity = 30.0";
+    expect_field(
+        with_gas(&[&jets(&[JET, second])]),
+        "gas.jets[1]",
+        "overlaps gas.jets[0] on face y_lo",
+    );
+    // Touching edges and jets on different faces are fine.
+    let touching =
+        "face = \"y_lo\", centre = [0.009, 0.0, 0.01], size = [0.004, 0.0, 0.004], velocity = 30.0";
+    let other_face =
+        "face = \"x_lo\", centre = [0.0, 0.001, 0.01], size = [0.0, 0.002, 0.004], velocity = 30.0";
+    let s = with_gas(&[&jets(&[JET, touching, other_face])]).unwrap();
+    assert_eq!(s.gas.unwrap().jets.len(), 3);
+    // Planar: jets span the depth, so only x decides.
+    let a =
+        "face = \"y_lo\", centre = [0.005, 0.0, 0.0], size = [0.004, 0.0, 0.0], velocity = 30.0";
+    let b =
+        "face = \"y_lo\", centre = [0.008, 0.0, 0.0], size = [0.004, 0.0, 0.0], velocity = 30.0";
+    expect_field(
+        Scenario::from_str_named(&planar_gas_text(), "test.toml", &[jets(&[a, b])]),
+        "gas.jets[1]",
+        "jets on one face must not overlap",
+    );
+}
+
+#[test]
+fn vtk_interval_must_be_positive() {
+    expect_field(
+        with(&["output.vtk_interval=0"]),
+        "output.vtk_interval",
+        "must be > 0 s and finite, got 0.0",
+    );
+    let msg = expect_field(
+        parse(&format!("{}\n[output]\nvtk_interval = -0.5\n", gas_text())),
+        "output.vtk_interval",
+        "must be > 0 s and finite, got -0.5",
+    );
+    assert!(msg.contains("(line "), "{msg}");
+    expect_field(
+        with(&["output.vtk_interval=nan"]),
+        "output.vtk_interval",
+        "must be > 0 s",
+    );
+}
+
 // ---------------------------------------------------------------- overrides
 
 #[test]
@@ -970,6 +1581,14 @@ fn hand_written_bad_inputs_do_not_panic() {
         "particles.0.solids_fraction=1e-300",
         "collisions.pairs=[{}]",
         "boundaries.outlet={}",
+        "gas={}",
+        "gas.cells=[1e300, -1, 99999999999999]",
+        "gas={ cells = [4096, 4096, 4096] }",
+        "gas={ cells = [4, 8, 4], faces = { y_lo = { inflow = nan } } }",
+        "gas={ cells = [4, 8, 4], jets = [{}] }",
+        "gas={ cells = [4, 8, 4], jets = [{ face = \"y_lo\", centre = [inf, 0, 0], size = [nan, 0, 0], velocity = 1 }] }",
+        "gas={ cells = [4, 8, 4], faces = { y_hi = \"outlet\" }, jets = [{ face = \"y_lo\", centre = [0.01, 0, 0.01], size = [1e308, 0, 1e308], velocity = 1, period = 1e308, on_time = 1e308 }] }",
+        "output.vtk_interval=-inf",
     ];
     for o in weird_overrides {
         no_panic(BASE, &[o.to_string()]);

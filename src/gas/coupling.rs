@@ -39,6 +39,8 @@ pub struct Coupling {
     kicks: Vec<DVec3>,
     solids: Vec<f64>,
     gas_fraction: Vec<f64>,
+    /// Face pressure gradients of the current gas level (Pa/m).
+    gradient: [Vec<f64>; 3],
     /// Cells whose gas fraction was raised to [`MIN_GAS_FRACTION`] (summed
     /// over steps).
     pub clamped_cells: u64,
@@ -90,9 +92,7 @@ impl Coupling {
                 4.0 / 3.0 * std::f64::consts::PI * p.radius.powi(3)
             };
             let side = Self::cube_side(gas, p.radius);
-            for (c, w) in cell_weights(grid, p.pos, side) {
-                self.solids[c] += amount * w;
-            }
+            cell_weights(grid, p.pos, side).scatter(amount, &mut self.solids);
         }
         self.gas_fraction.clear();
         for &s in &self.solids {
@@ -151,10 +151,11 @@ impl Coupling {
             self.drag_coefficient.push(k);
             if gas.config.two_way {
                 for &a in gas.grid.velocity_axes() {
-                    for (f, w) in face_weights(&gas.grid, a, p.pos, side) {
-                        gas.drag_beta[a][f] += w * k / volume;
-                        gas.drag_alpha[a][f] -= w * k * p.vel[a] / volume;
-                    }
+                    let (beta, alpha) = (k / volume, -k * p.vel[a] / volume);
+                    face_weights(&gas.grid, a, p.pos, side).for_each(|f, w| {
+                        gas.drag_beta[a][f] += w * beta;
+                        gas.drag_alpha[a][f] += w * alpha;
+                    });
                 }
             }
         }
@@ -171,6 +172,7 @@ impl Coupling {
         dt: f64,
     ) -> &[DVec3] {
         self.kicks.clear();
+        face_pressure_gradient(gas, &mut self.gradient);
         let mut to_particles = DVec3::ZERO;
         for (slot, &k) in slots.zip(&self.drag_coefficient) {
             let Some(p) = slot else {
@@ -179,7 +181,10 @@ impl Coupling {
             };
             let side = Self::cube_side(gas, p.radius);
             let u = interpolate_velocity(gas, p.pos, side);
-            let grad_p = interpolate_pressure_gradient(gas, p.pos, side);
+            let mut grad_p = DVec3::ZERO;
+            for &a in gas.grid.velocity_axes() {
+                grad_p[a] = face_weights(&gas.grid, a, p.pos, side).interpolate(&self.gradient[a]);
+            }
             let volume = 4.0 / 3.0 * std::f64::consts::PI * p.radius.powi(3);
             let drag = k * (u - p.vel);
             to_particles += drag * dt;
@@ -208,31 +213,27 @@ impl Coupling {
 pub fn interpolate_velocity(gas: &GasPhase, pos: DVec3, side: f64) -> DVec3 {
     let mut u = DVec3::ZERO;
     for &a in gas.grid.velocity_axes() {
-        u[a] = face_weights(&gas.grid, a, pos, side)
-            .into_iter()
-            .map(|(f, w)| w * gas.velocity[a][f])
-            .sum();
+        u[a] = face_weights(&gas.grid, a, pos, side).interpolate(&gas.velocity[a]);
     }
     u
 }
 
-/// Pressure gradient at `pos` (Pa/m), from the interior faces.
-pub fn interpolate_pressure_gradient(gas: &GasPhase, pos: DVec3, side: f64) -> DVec3 {
-    let mut g = DVec3::ZERO;
+/// Pressure gradient normal to each interior face (Pa/m), per axis
+/// (zero on boundary faces, which carry no particle weight).
+pub fn face_pressure_gradient(gas: &GasPhase, out: &mut [Vec<f64>; 3]) {
     let grid = &gas.grid;
     for &a in grid.velocity_axes() {
+        out[a].clear();
+        out[a].resize(grid.faces(a), 0.0);
         let h = grid.h[a];
-        g[a] = face_weights(grid, a, pos, side)
-            .into_iter()
-            .map(|(f, w)| {
-                let c = grid.face_coords(a, f);
-                let mut lower = c;
-                lower[a] = if c[a] == 0 { grid.n[a] - 1 } else { c[a] - 1 };
-                let upper = if c[a] == grid.n[a] { lower } else { c };
-                w * (gas.pressure[grid.cell_index(upper)] - gas.pressure[grid.cell_index(lower)])
-                    / h
-            })
-            .sum();
+        for (f, g) in out[a].iter_mut().enumerate() {
+            let c = grid.face_coords(a, f);
+            if grid.is_boundary_face(a, c) {
+                continue;
+            }
+            let mut lower = c;
+            lower[a] = if c[a] == 0 { grid.n[a] - 1 } else { c[a] - 1 };
+            *g = (gas.pressure[grid.cell_index(c)] - gas.pressure[grid.cell_index(lower)]) / h;
+        }
     }
-    g
 }

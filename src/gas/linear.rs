@@ -285,34 +285,73 @@ const PIVOT_BREAKDOWN: f64 = 1.5e-8;
 /// residual has converged but the true one has not.
 const MAX_RESTARTS: usize = 5;
 
-/// Visits the cells `(i, j)` of an `nx × ny` plane in an order that
-/// respects the dependencies of a lexicographic triangular sweep ((i, j)
-/// after (i − 1, j) and (i, j − 1)), interleaving four lines skewed by one
-/// cell so that four independent recurrences are in flight (the sweeps are
-/// otherwise bound by floating-point latency).
+/// Lexicographic sweep over the plane of `nx × ny` cells starting at
+/// `p0` in `v`: in dependency order, `v[p] ← update(p, v[p], up, left)`
+/// where `up = v[p − nx]` and `left = v[p − 1]` are already updated. The
+/// caller guarantees `p0 ≥ nx` (padding) and makes the coefficients of
+/// `left` for the first cell of a line, and of `up` for the first line,
+/// zero (those entries are still read, and must be finite).
+///
+/// Four lines are processed together, skewed by one cell, with the
+/// neighbour values passed in registers: the four recurrences are
+/// independent, which hides the floating-point latency that otherwise
+/// bounds a triangular sweep.
 #[inline(always)]
-fn wavefront(nx: usize, ny: usize, mut cell: impl FnMut(usize, usize)) {
+fn sweep_plane(v: &mut [f64], p0: usize, nx: usize, ny: usize, mut update: impl FnMut(usize, f64, f64, f64) -> f64) {
     let mut j = 0;
     while j + 4 <= ny {
-        for s in 0..nx + 3 {
-            if s < nx {
-                cell(s, j);
+        let q = p0 + j * nx;
+        let (head, tail) = v.split_at_mut(q);
+        let above = &head[q - nx..];
+        let (l0, tail) = tail.split_at_mut(nx);
+        let (l1, tail) = tail.split_at_mut(nx);
+        let (l2, tail) = tail.split_at_mut(nx);
+        let l3 = &mut tail[..nx];
+        // Last updated value of each line (the `left` of its next cell,
+        // and the `up` of the next line's next cell).
+        let (mut v0, mut v1, mut v2, mut v3) = (0.0, 0.0, 0.0, 0.0);
+        let (q1, q2, q3) = (q + nx, q + 2 * nx, q + 3 * nx);
+        // Step s updates line k at i = s − k.
+        for s in 0..(nx + 3) {
+            if (3..nx).contains(&s) {
+                let n3 = update(q3 + s - 3, l3[s - 3], v2, v3);
+                let n2 = update(q2 + s - 2, l2[s - 2], v1, v2);
+                let n1 = update(q1 + s - 1, l1[s - 1], v0, v1);
+                let n0 = update(q + s, l0[s], above[s], v0);
+                (l0[s], l1[s - 1], l2[s - 2], l3[s - 3]) = (n0, n1, n2, n3);
+                (v0, v1, v2, v3) = (n0, n1, n2, n3);
+                continue;
             }
-            if s >= 1 && s - 1 < nx {
-                cell(s - 1, j + 1);
+            // Ramp-up and ramp-down steps.
+            let (u0, u1, u2) = (v0, v1, v2);
+            if s >= 3 && s - 3 < nx {
+                v3 = update(q3 + s - 3, l3[s - 3], u2, v3);
+                l3[s - 3] = v3;
             }
             if s >= 2 && s - 2 < nx {
-                cell(s - 2, j + 2);
+                v2 = update(q2 + s - 2, l2[s - 2], u1, v2);
+                l2[s - 2] = v2;
             }
-            if s >= 3 && s - 3 < nx {
-                cell(s - 3, j + 3);
+            if s >= 1 && s - 1 < nx {
+                v1 = update(q1 + s - 1, l1[s - 1], u0, v1);
+                l1[s - 1] = v1;
+            }
+            if s < nx {
+                v0 = update(q + s, l0[s], above[s], v0);
+                l0[s] = v0;
             }
         }
         j += 4;
     }
     for j in j..ny {
-        for i in 0..nx {
-            cell(i, j);
+        let q = p0 + j * nx;
+        let (head, tail) = v.split_at_mut(q);
+        let above = &head[q - nx..];
+        let line = &mut tail[..nx];
+        let mut left = 0.0;
+        for (i, (x, &up)) in line.iter_mut().zip(above).enumerate() {
+            left = update(q + i, *x, up, left);
+            *x = left;
         }
     }
 }
@@ -335,7 +374,9 @@ struct PcgWork {
     inv_d: Vec<f64>,
     /// `w[axis][c − e_axis] / D[c]`; padded.
     f: [Vec<f64>; 3],
-    /// `w[axis][c] / D[c]`; padded.
+    /// `w[axis][c] / D[c]`, stored mirrored (cell `c` at `pad + N − 1 − c`)
+    /// so that the backward sweep is a forward sweep on the reversed
+    /// vector; padded.
     g: [Vec<f64>; 3],
     /// Wrap-around couplings present: periodic axes with ≥ 2 cells.
     wrap: [bool; 3],
@@ -387,63 +428,85 @@ impl PcgWork {
     }
 
     /// Incomplete factorisation; `Err(row)` on a genuine breakdown.
+    ///
+    /// Pivots: `D_c = a_c − Σ_axis (w_p / D_p) (w_p + α Σ_{b≠axis} w_b,p)`
+    /// over the lower neighbours `p = c − e_axis`, where `w_p` couples `p`
+    /// and `c` and `w_b,p` couples `p` with its other upper neighbours (the
+    /// dropped fill-in, a fraction `α` of which goes to the diagonal).
     fn factor(&mut self, alpha: f64) -> Result<(), usize> {
         let [nx, ny, nz] = self.n;
         let sxy = nx * ny;
         let pad = self.pad;
         let len = sxy * nz;
         let padded = len + 2 * pad;
+        let strides = [1, nx, sxy];
+        // Coefficients of the lower neighbours' inverse pivots, kept in `f`
+        // until the pivots are known.
+        for axis in 0..3 {
+            let [o1, o2] = [(axis + 1) % 3, (axis + 2) % 3];
+            let s = strides[axis];
+            let f = &mut self.f[axis];
+            f.clear();
+            f.resize(padded, 0.0);
+            if axis == 2 && nz == 1 {
+                continue;
+            }
+            let (w, wo1, wo2) = (&self.w[axis], &self.w[o1], &self.w[o2]);
+            for p in pad..pad + len {
+                let q = p - s;
+                f[p] = w[q] * (w[q] + alpha * (wo1[q] + wo2[q]));
+            }
+        }
         let inv_d = &mut self.inv_d;
         inv_d.clear();
         inv_d.resize(padded, 0.0);
-        let [w0, w1, w2] = &self.w;
+        let [f0, f1, f2] = &self.f;
         let aeff = &self.aeff;
         let mut modified = 0;
         let mut breakdown = None;
         for k in 0..nz {
             let base = k * sxy;
-            wavefront(nx, ny, |i, j| {
-                let c = base + i + nx * j;
-                let p = pad + c;
-                let mut d = aeff[c];
-                let wx = w0[p - 1];
-                d -= wx * (wx + alpha * (w1[p - 1] + w2[p - 1])) * inv_d[p - 1];
-                let wy = w1[p - nx];
-                d -= wy * (wy + alpha * (w0[p - nx] + w2[p - nx])) * inv_d[p - nx];
-                if nz > 1 {
-                    let wz = w2[p - sxy];
-                    d -= wz * (wz + alpha * (w0[p - sxy] + w1[p - sxy])) * inv_d[p - sxy];
+            let p0 = pad + base;
+            // Plane prepass: inv_d temporarily holds a_c minus the lower-plane term.
+            if nz > 1 {
+                for c in base..base + sxy {
+                    let p = pad + c;
+                    inv_d[p] = aeff[c] - f2[p] * inv_d[p - sxy];
                 }
-                if d.is_nan() || d < -PIVOT_BREAKDOWN * aeff[c] {
-                    breakdown.get_or_insert(c);
-                    d = aeff[c];
-                } else if d < PIVOT_FLOOR * aeff[c] {
-                    d = aeff[c];
+            } else {
+                inv_d[p0..p0 + sxy].copy_from_slice(&aeff[base..base + sxy]);
+            }
+            sweep_plane(inv_d, p0, nx, ny, |p, h, up, left| {
+                let mut d = h - f1[p] * up - f0[p] * left;
+                let a = aeff[p - pad];
+                if d.is_nan() || d < -PIVOT_BREAKDOWN * a {
+                    breakdown.get_or_insert(p - pad);
+                    d = a;
+                } else if d < PIVOT_FLOOR * a {
+                    d = a;
                     modified += 1;
                 }
-                inv_d[p] = 1.0 / d;
+                1.0 / d
             });
         }
         self.modified = modified;
         if let Some(row) = breakdown {
             return Err(row);
         }
-        let strides = [1, nx, sxy];
         for axis in 0..3 {
             let w = &self.w[axis];
             let s = strides[axis];
             let f = &mut self.f[axis];
-            f.clear();
-            f.resize(padded, 0.0);
             let g = &mut self.g[axis];
             g.clear();
             g.resize(padded, 0.0);
             if axis == 2 && nz == 1 {
                 continue;
             }
+            let mirror = 2 * pad + len - 1;
             for p in pad..pad + len {
                 f[p] = w[p - s] * inv_d[p];
-                g[p] = w[p] * inv_d[p];
+                g[mirror - p] = w[p] * inv_d[p];
             }
         }
         Ok(())
@@ -454,6 +517,7 @@ impl PcgWork {
         let [nx, ny, nz] = self.n;
         let sxy = nx * ny;
         let pad = self.pad;
+        let len = sxy * nz;
         let [f0, f1, f2] = &self.f;
         let [g0, g1, g2] = &self.g;
         let inv_d = &self.inv_d;
@@ -469,30 +533,25 @@ impl PcgWork {
                     z[p] = r[base + c] * inv_d[p] - f2[p] * z[p - sxy];
                 }
             } else {
-                for c in 0..sxy {
-                    z[p0 + c] = r[base + c] * inv_d[p0 + c];
+                for ((zp, &rc), &id) in z[p0..p0 + sxy].iter_mut().zip(&r[base..base + sxy]).zip(&inv_d[p0..p0 + sxy]) {
+                    *zp = rc * id;
                 }
             }
-            wavefront(nx, ny, |i, j| {
-                let p = p0 + i + nx * j;
-                let t = z[p] - f1[p] * z[p - nx];
-                z[p] = t - f0[p] * z[p - 1];
-            });
+            sweep_plane(z, p0, nx, ny, |p, t, up, left| (t - f1[p] * up) - f0[p] * left);
         }
-        // Backward, in place: z = u − D⁻¹ Lᵀ z.
-        for k in (0..nz).rev() {
+        // Backward: (D + Lᵀ) z = D u, i.e. z = u − D⁻¹ Lᵀ z, as a forward
+        // sweep on the mirrored vector with the mirrored coefficients `g`.
+        z[pad..pad + len].reverse();
+        for k in 0..nz {
             let p0 = pad + k * sxy;
             if nz > 1 {
                 for p in p0..p0 + sxy {
-                    z[p] -= g2[p] * z[p + sxy];
+                    z[p] -= g2[p] * z[p - sxy];
                 }
             }
-            wavefront(nx, ny, |i, j| {
-                let p = p0 + (nx - 1 - i) + nx * (ny - 1 - j);
-                let t = z[p] - g1[p] * z[p + nx];
-                z[p] = t - g0[p] * z[p + 1];
-            });
+            sweep_plane(z, p0, nx, ny, |p, t, up, left| (t - g1[p] * up) - g0[p] * left);
         }
+        z[pad..pad + len].reverse();
     }
 
     /// `z = M⁻¹ r`.
@@ -1663,8 +1722,12 @@ mod timing {
     #[test]
     #[ignore = "timing report; run with --ignored --nocapture"]
     fn timing_components() {
-        for n in [[15, 45, 1], [46, 46, 46]] {
-            let a = pressure_like(n, [false; 3], true, 1);
+        for (n, periodic) in [
+            ([15, 45, 1], [false; 3]),
+            ([15, 45, 1], [true, false, false]),
+            ([46, 46, 46], [false; 3]),
+        ] {
+            let a = pressure_like(n, periodic, true, 1);
             let len = a.len();
             let reps = (200_000 / len).max(3);
             let r: Vec<f64> = (0..len).map(|c| (c as f64).sin()).collect();
@@ -1681,7 +1744,7 @@ mod timing {
                 std::hint::black_box(dot(&r, &z));
             });
             eprintln!(
-                "{n:?}: factor {tf:.2} µs, apply {tm:.2} µs, matvec {tm2:.2} µs, precond {tp:.2} µs, dot {td:.2} µs  (ns/cell: {:.2} {:.2} {:.2} {:.2} {:.2})",
+                "{n:?} {periodic:?}: factor {tf:.2} µs, apply {tm:.2} µs, matvec {tm2:.2} µs, precond {tp:.2} µs, dot {td:.2} µs  (ns/cell: {:.2} {:.2} {:.2} {:.2} {:.2})",
                 tf * 1e3 / len as f64,
                 tm * 1e3 / len as f64,
                 tm2 * 1e3 / len as f64,
@@ -1695,10 +1758,10 @@ mod timing {
     #[ignore = "timing report; run with --ignored --nocapture"]
     fn timing_report() {
         let cases: &[([usize; 3], [bool; 3], usize)] = &[
-            ([15, 45, 1], [false; 3], 2000),
-            ([15, 45, 1], [true, false, false], 2000),
-            ([60, 180, 1], [false; 3], 50),
-            ([46, 46, 46], [false; 3], 5),
+            ([15, 45, 1], [false; 3], 300),
+            ([15, 45, 1], [true, false, false], 300),
+            ([60, 180, 1], [false; 3], 10),
+            ([46, 46, 46], [false; 3], 1),
         ];
         for &(n, periodic, reps) in cases {
             let a = pressure_like(n, periodic, true, 1);
@@ -1719,12 +1782,10 @@ mod timing {
             for s in list.iter_mut() {
                 let mut x = vec![0.0; a.len()];
                 let stats = s.solve(&a, &b, &mut x, 1e-10).unwrap();
-                let t = std::time::Instant::now();
-                for _ in 0..reps {
+                let us = time_us(reps, || {
                     x.fill(0.0);
                     s.solve(&a, &b, &mut x, 1e-10).unwrap();
-                }
-                let us = t.elapsed().as_secs_f64() / reps as f64 * 1e6;
+                });
                 eprintln!(
                     "{n:?} {periodic:?} {:16} its {:4} res {:.1e}  {us:10.1} µs/solve",
                     s.name(),

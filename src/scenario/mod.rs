@@ -11,6 +11,7 @@
 //! No input makes this module panic.
 
 mod diameter;
+mod gas;
 mod locate;
 mod overrides;
 mod raw;
@@ -336,6 +337,10 @@ pub struct EngineSettings {
 pub struct OutputSettings {
     /// Time-series sampling interval (s), `0 < sample_interval <= t_end`.
     pub sample_interval: f64,
+    /// Interval between VTK snapshots of the particles (and of the gas
+    /// fields when [`Scenario::gas`] is `Some`) (s), `0 < vtk_interval <=
+    /// t_end`; `None`: no snapshots.
+    pub vtk_interval: Option<f64>,
 }
 
 /// A validated scenario with resolved indices and defaults.
@@ -364,6 +369,8 @@ pub struct Scenario {
     pub time: TimeSettings,
     pub engine: EngineSettings,
     pub output: OutputSettings,
+    /// `[gas]`: the gas phase; `None` for a dry (particles-only) run.
+    pub gas: Option<crate::gas::GasConfig>,
 }
 
 impl Scenario {

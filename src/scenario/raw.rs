@@ -1,6 +1,7 @@
 //! The TOML schema as serde types, before validation. Every table rejects
-//! unknown keys. To add a section (e.g. `[gas]`), add an `Option<RawGas>`
-//! field to [`RawScenario`] and resolve it in `validate.rs`.
+//! unknown keys. To add a section, add an `Option<RawSection>` field to
+//! [`RawScenario`] and resolve it in `validate.rs` (as `[gas]` is, in
+//! `gas.rs`).
 
 use serde::Deserialize;
 use serde::de::{self, MapAccess, Visitor};
@@ -25,6 +26,7 @@ pub(super) struct RawScenario {
     pub time: RawTime,
     pub engine: Option<RawEngine>,
     pub output: Option<RawOutput>,
+    pub gas: Option<RawGas>,
 }
 
 #[derive(Deserialize)]
@@ -160,6 +162,177 @@ pub(super) struct RawEngine {
 #[serde(deny_unknown_fields)]
 pub(super) struct RawOutput {
     pub sample_interval: Option<f64>,
+    pub vtk_interval: Option<f64>,
+}
+
+/// `[gas]`; resolved in `gas.rs`.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct RawGas {
+    pub model: Option<RawGasModel>,
+    pub density: Option<f64>,
+    pub molar_mass: Option<f64>,
+    pub temperature: Option<f64>,
+    pub viscosity: Option<f64>,
+    pub pressure: Option<f64>,
+    /// Kept as raw values so that length and integer range get uniform
+    /// messages.
+    pub cells: Vec<RawInt>,
+    pub drag: Option<crate::gas::DragLaw>,
+    pub porosity: Option<RawPorosity>,
+    pub cube_factor: Option<f64>,
+    pub planar_porosity: Option<crate::gas::PlanarPorosity>,
+    pub initial_velocity: Option<[f64; 3]>,
+    pub pressure_solver: Option<crate::gas::PressureSolverKind>,
+    pub linear_tolerance: Option<f64>,
+    pub mass_tolerance: Option<f64>,
+    pub max_outer_iterations: Option<RawInt>,
+    pub coupling: Option<RawCoupling>,
+    pub faces: Option<RawGasFaces>,
+    #[serde(default)]
+    pub jets: Vec<RawJet>,
+}
+
+#[derive(Deserialize, Clone, Copy, PartialEq, Eq)]
+#[serde(rename_all = "kebab-case")]
+pub(super) enum RawGasModel {
+    IdealGas,
+    Incompressible,
+}
+
+#[derive(Deserialize, Clone, Copy, PartialEq, Eq)]
+#[serde(rename_all = "kebab-case")]
+pub(super) enum RawPorosity {
+    VolumeWeighting,
+    PorousCube,
+}
+
+#[derive(Deserialize, Clone, Copy, PartialEq, Eq)]
+#[serde(rename_all = "kebab-case")]
+pub(super) enum RawCoupling {
+    TwoWay,
+    OneWay,
+}
+
+/// `[gas.faces]`: one optional entry per face of the domain.
+#[derive(Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+pub(super) struct RawGasFaces {
+    pub x_lo: Option<RawGasFace>,
+    pub x_hi: Option<RawGasFace>,
+    pub y_lo: Option<RawGasFace>,
+    pub y_hi: Option<RawGasFace>,
+    pub z_lo: Option<RawGasFace>,
+    pub z_hi: Option<RawGasFace>,
+}
+
+impl RawGasFaces {
+    /// Entries as `[axis][lo, hi]`.
+    pub fn by_axis(&self) -> [[Option<RawGasFace>; 2]; 3] {
+        [
+            [self.x_lo, self.x_hi],
+            [self.y_lo, self.y_hi],
+            [self.z_lo, self.z_hi],
+        ]
+    }
+}
+
+/// `"no-slip"`, `"free-slip"`, `"outlet"` or `{ inflow = <m/s> }`.
+#[derive(Clone, Copy)]
+pub(super) enum RawGasFace {
+    NoSlip,
+    FreeSlip,
+    Outlet,
+    Inflow(f64),
+}
+
+const GAS_FACE_KINDS: &[&str] = &["no-slip", "free-slip", "outlet", "inflow"];
+
+impl<'de> Deserialize<'de> for RawGasFace {
+    fn deserialize<D: de::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct V;
+        impl<'de> Visitor<'de> for V {
+            type Value = RawGasFace;
+
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str(
+                    "\"no-slip\", \"free-slip\", \"outlet\" or { inflow = <velocity in m/s> }",
+                )
+            }
+
+            fn visit_str<E: de::Error>(self, v: &str) -> Result<RawGasFace, E> {
+                match v {
+                    "no-slip" => Ok(RawGasFace::NoSlip),
+                    "free-slip" => Ok(RawGasFace::FreeSlip),
+                    "outlet" => Ok(RawGasFace::Outlet),
+                    "inflow" => Err(E::custom(
+                        "an inflow face needs its velocity: write { inflow = <velocity in m/s> }",
+                    )),
+                    other => Err(E::unknown_variant(other, GAS_FACE_KINDS)),
+                }
+            }
+
+            fn visit_map<A: MapAccess<'de>>(self, mut map: A) -> Result<RawGasFace, A::Error> {
+                let Some(kind) = map.next_key::<String>()? else {
+                    return Err(de::Error::custom(
+                        "empty table: expected { inflow = <velocity in m/s> }",
+                    ));
+                };
+                if kind != "inflow" {
+                    return Err(de::Error::custom(format!(
+                        "unknown key `{kind}`: a face table is {{ inflow = <velocity in m/s> }}; other faces are \"no-slip\", \"free-slip\" or \"outlet\""
+                    )));
+                }
+                let v: f64 = map.next_value()?;
+                if let Some(extra) = map.next_key::<String>()? {
+                    return Err(de::Error::custom(format!(
+                        "a face table takes only `inflow`; found `{extra}` as well"
+                    )));
+                }
+                Ok(RawGasFace::Inflow(v))
+            }
+        }
+        d.deserialize_any(V)
+    }
+}
+
+/// A face of the domain by name (`x_lo`, ..., `z_hi`).
+#[derive(Deserialize, Clone, Copy)]
+#[serde(rename_all = "snake_case")]
+pub(super) enum FaceName {
+    XLo,
+    XHi,
+    YLo,
+    YHi,
+    ZLo,
+    ZHi,
+}
+
+impl FaceName {
+    /// Normal axis (0 = x, 1 = y, 2 = z) and side (`true`: the `hi` face).
+    pub fn axis_side(self) -> (usize, bool) {
+        match self {
+            FaceName::XLo => (0, false),
+            FaceName::XHi => (0, true),
+            FaceName::YLo => (1, false),
+            FaceName::YHi => (1, true),
+            FaceName::ZLo => (2, false),
+            FaceName::ZHi => (2, true),
+        }
+    }
+}
+
+/// `[[gas.jets]]`.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct RawJet {
+    pub face: FaceName,
+    pub centre: [f64; 3],
+    pub size: [f64; 3],
+    pub velocity: f64,
+    pub start: Option<f64>,
+    pub period: Option<f64>,
+    pub on_time: Option<f64>,
 }
 
 /// `diameter = 1e-3` or `diameter = { uniform = {...} }` etc.

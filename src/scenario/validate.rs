@@ -154,7 +154,7 @@ impl Ctx<'_> {
         self.err_impl(path, message, unknown_key)
     }
 
-    fn positive(&self, path: &str, v: f64) -> R<f64> {
+    pub(super) fn positive(&self, path: &str, v: f64) -> R<f64> {
         if v.is_finite() && v > 0.0 {
             Ok(v)
         } else {
@@ -162,7 +162,7 @@ impl Ctx<'_> {
         }
     }
 
-    fn non_negative(&self, path: &str, v: f64) -> R<f64> {
+    pub(super) fn non_negative(&self, path: &str, v: f64) -> R<f64> {
         if v.is_finite() && v >= 0.0 {
             Ok(v)
         } else {
@@ -170,7 +170,7 @@ impl Ctx<'_> {
         }
     }
 
-    fn closed(&self, path: &str, v: f64, lo: f64, hi: f64) -> R<f64> {
+    pub(super) fn closed(&self, path: &str, v: f64, lo: f64, hi: f64) -> R<f64> {
         if v >= lo && v <= hi {
             Ok(v)
         } else {
@@ -178,7 +178,7 @@ impl Ctx<'_> {
         }
     }
 
-    fn vec3(&self, path: &str, a: [f64; 3]) -> R<DVec3> {
+    pub(super) fn vec3(&self, path: &str, a: [f64; 3]) -> R<DVec3> {
         for (i, x) in a.iter().enumerate() {
             if !x.is_finite() {
                 return Err(self.err(format!("{path}[{i}]"), format!("must be finite, got {x:?}")));
@@ -187,7 +187,7 @@ impl Ctx<'_> {
         Ok(DVec3::from_array(a))
     }
 
-    fn uint(&self, path: &str, v: &RawInt) -> R<u64> {
+    pub(super) fn uint(&self, path: &str, v: &RawInt) -> R<u64> {
         match v {
             toml::Value::Integer(n) if *n >= 0 => Ok(*n as u64),
             other => Err(self.err(path, format!("must be a non-negative integer, got {other}"))),
@@ -774,10 +774,11 @@ pub(crate) fn validate(ctx: &Ctx, raw: RawScenario) -> R<Scenario> {
     };
 
     // ---- output
-    let sample_interval = raw
-        .output
-        .and_then(|o| o.sample_interval)
-        .unwrap_or(t_end / 100.0);
+    let (sample_interval, vtk_interval) = match raw.output {
+        Some(o) => (o.sample_interval, o.vtk_interval),
+        None => (None, None),
+    };
+    let sample_interval = sample_interval.unwrap_or(t_end / 100.0);
     if !(sample_interval.is_finite() && sample_interval > 0.0) {
         return Err(ctx.err(
             "output.sample_interval",
@@ -787,6 +788,23 @@ pub(crate) fn validate(ctx: &Ctx, raw: RawScenario) -> R<Scenario> {
     // An interval longer than the run (e.g. after --t-end shortened it)
     // samples at the start and the end only.
     let sample_interval = sample_interval.min(t_end);
+    let vtk_interval = match vtk_interval {
+        Some(v) if !(v.is_finite() && v > 0.0) => {
+            return Err(ctx.err(
+                "output.vtk_interval",
+                format!("must be > 0 s and finite, got {v:?}"),
+            ));
+        }
+        // Clamped like sample_interval: snapshots at the start and the end.
+        Some(v) => Some(v.min(t_end)),
+        None => None,
+    };
+
+    // ---- gas
+    let gas = match &raw.gas {
+        Some(g) => Some(super::gas::validate_gas(ctx, g, &domain, &boundaries)?),
+        None => None,
+    };
 
     Ok(Scenario {
         name: ctx.file.to_string(),
@@ -806,7 +824,11 @@ pub(crate) fn validate(ctx: &Ctx, raw: RawScenario) -> R<Scenario> {
         initial: InitialState { checkpoint },
         time,
         engine,
-        output: OutputSettings { sample_interval },
+        output: OutputSettings {
+            sample_interval,
+            vtk_interval,
+        },
+        gas,
     })
 }
 
