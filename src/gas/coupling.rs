@@ -21,7 +21,7 @@ use glam::DVec3;
 
 use super::config::{PlanarPorosity, PorosityMapping};
 use super::drag::particle_drag_coefficient;
-use super::mapping::{cell_weights, face_weights};
+use super::mapping::{Weights, cell_weights, face_weights};
 use super::solver::GasPhase;
 use crate::engine::ParticleView;
 
@@ -140,19 +140,21 @@ impl Coupling {
                 continue;
             };
             let side = Self::cube_side(gas, p.radius);
-            let (eps, rho) = cell_weights(&gas.grid, p.pos, side)
-                .into_iter()
-                .fold((0.0, 0.0), |acc, (c, w)| {
-                    (acc.0 + w * gas.gas_fraction[c], acc.1 + w * gas.density[c])
-                });
-            let u = interpolate_velocity(gas, p.pos, side);
+            let weights = cell_weights(&gas.grid, p.pos, side);
+            let eps = weights.interpolate(&gas.gas_fraction);
+            let rho = weights.interpolate(&gas.density);
+            let faces = face_weights_all(gas, p.pos, side);
+            let mut u = DVec3::ZERO;
+            for &a in gas.grid.velocity_axes() {
+                u[a] = faces[a].interpolate(&gas.velocity[a]);
+            }
             let k =
                 particle_drag_coefficient(law, eps, rho, mu, 2.0 * p.radius, (u - p.vel).length());
             self.drag_coefficient.push(k);
             if gas.config.two_way {
                 for &a in gas.grid.velocity_axes() {
                     let (beta, alpha) = (k / volume, -k * p.vel[a] / volume);
-                    face_weights(&gas.grid, a, p.pos, side).for_each(|f, w| {
+                    faces[a].for_each(|f, w| {
                         gas.drag_beta[a][f] += w * beta;
                         gas.drag_alpha[a][f] += w * alpha;
                     });
@@ -180,10 +182,12 @@ impl Coupling {
                 continue;
             };
             let side = Self::cube_side(gas, p.radius);
-            let u = interpolate_velocity(gas, p.pos, side);
+            let faces = face_weights_all(gas, p.pos, side);
+            let mut u = DVec3::ZERO;
             let mut grad_p = DVec3::ZERO;
             for &a in gas.grid.velocity_axes() {
-                grad_p[a] = face_weights(&gas.grid, a, p.pos, side).interpolate(&self.gradient[a]);
+                u[a] = faces[a].interpolate(&gas.velocity[a]);
+                grad_p[a] = faces[a].interpolate(&self.gradient[a]);
             }
             let volume = 4.0 / 3.0 * std::f64::consts::PI * p.radius.powi(3);
             let drag = k * (u - p.vel);
@@ -209,13 +213,15 @@ impl Coupling {
     }
 }
 
-/// Interstitial gas velocity at `pos` (m/s) from the staggered faces.
-pub fn interpolate_velocity(gas: &GasPhase, pos: DVec3, side: f64) -> DVec3 {
-    let mut u = DVec3::ZERO;
+/// Face weights of a particle for each velocity axis (empty for z in
+/// planar mode).
+#[inline]
+fn face_weights_all(gas: &GasPhase, pos: DVec3, side: f64) -> [Weights; 3] {
+    let mut out = [Weights::EMPTY; 3];
     for &a in gas.grid.velocity_axes() {
-        u[a] = face_weights(&gas.grid, a, pos, side).interpolate(&gas.velocity[a]);
+        out[a] = face_weights(&gas.grid, a, pos, side);
     }
-    u
+    out
 }
 
 /// Pressure gradient normal to each interior face (Pa/m), per axis

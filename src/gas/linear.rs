@@ -972,6 +972,8 @@ pub struct BandedCholesky {
     /// `perm[c]`: position of cell `c` in the band ordering.
     perm: Vec<usize>,
     perm_key: Option<([usize; 3], [usize; 3])>,
+    /// Diagonal of the permuted matrix (for the relative pivot test).
+    diag: Vec<f64>,
     y: Vec<f64>,
     r: Vec<f64>,
 }
@@ -992,6 +994,7 @@ impl BandedCholesky {
             band: Vec::new(),
             perm: Vec::new(),
             perm_key: None,
+            diag: Vec::new(),
             y: Vec::new(),
             r: Vec::new(),
         }
@@ -1019,44 +1022,53 @@ impl BandedCholesky {
     fn substitute(band: &[f64], bw: usize, y: &mut [f64]) {
         let w = bw + 1;
         let len = y.len();
-        for i in 0..len {
-            let j0 = i.saturating_sub(bw);
-            let row = &band[i * w..(i + 1) * w];
-            let s = dot(&row[bw + j0 - i..bw], &y[j0..i]);
-            y[i] = (y[i] - s) / row[bw];
-        }
-        for i in (0..len).rev() {
-            let j0 = i.saturating_sub(bw);
-            let row = &band[i * w..(i + 1) * w];
-            let xi = y[i] / row[bw];
-            y[i] = xi;
-            for (yk, &l) in y[j0..i].iter_mut().zip(&row[bw + j0 - i..bw]) {
-                *yk -= l * xi;
+        // Forward, column-oriented: L y = b.
+        for k in 0..len {
+            let col = &band[k * w..(k + 1) * w];
+            let m = w.min(len - k);
+            let yk = y[k] / col[0];
+            y[k] = yk;
+            for (yi, &l) in y[k + 1..k + m].iter_mut().zip(&col[1..m]) {
+                *yi -= l * yk;
             }
+        }
+        // Backward, row-oriented on Lᵀ: Lᵀ x = y.
+        for k in (0..len).rev() {
+            let col = &band[k * w..(k + 1) * w];
+            let m = w.min(len - k);
+            let s = dot(&col[1..m], &y[k + 1..k + m]);
+            y[k] = (y[k] - s) / col[0];
         }
     }
 
-    /// In-place band Cholesky; `Err(i)` for a bad pivot in band row `i`.
-    fn factor(band: &mut [f64], bw: usize, len: usize) -> Result<(), usize> {
+    /// In-place right-looking band Cholesky on column storage (column `k`
+    /// holds rows `k ..= k + b`); `diag` is the diagonal of A for the
+    /// relative pivot test. `Err(k)` for a bad pivot in band row `k`.
+    fn factor(band: &mut [f64], diag: &[f64], bw: usize, len: usize) -> Result<(), usize> {
         let w = bw + 1;
-        for i in 0..len {
-            let j0 = i.saturating_sub(bw);
-            let (head, tail) = band.split_at_mut(i * w);
-            let row_i = &mut tail[..w];
-            let oi = bw + j0 - i;
-            for j in j0..i {
-                let row_j = &head[j * w..(j + 1) * w];
-                let m = j - j0;
-                let s = dot(&row_i[oi..oi + m], &row_j[bw - m..bw]);
-                let e = bw + j - i;
-                row_i[e] = (row_i[e] - s) / row_j[bw];
+        for k in 0..len {
+            let (head, tail) = band.split_at_mut((k + 1) * w);
+            let ck = &mut head[k * w..];
+            let m = w.min(len - k);
+            let s = ck[0];
+            if s.is_nan() || s <= BAND_PIVOT_TOL * diag[k] {
+                return Err(k);
             }
-            let aii = row_i[bw];
-            let s = aii - dot(&row_i[oi..bw], &row_i[oi..bw]);
-            if s.is_nan() || s <= BAND_PIVOT_TOL * aii {
-                return Err(i);
+            let l = s.sqrt();
+            ck[0] = l;
+            let inv = 1.0 / l;
+            for v in &mut ck[1..m] {
+                *v *= inv;
             }
-            row_i[bw] = s.sqrt();
+            // Rank-1 update of the trailing triangle: column k + j, rows
+            // k + j .. k + m.
+            for j in 1..m {
+                let sj = ck[j];
+                let cj = &mut tail[(j - 1) * w..(j - 1) * w + (m - j)];
+                for (c, &v) in cj.iter_mut().zip(&ck[j..m]) {
+                    *c -= sj * v;
+                }
+            }
         }
         Ok(())
     }
@@ -1124,13 +1136,14 @@ impl PressureSolver for BandedCholesky {
             self.perm_key = Some((a.n, order));
         }
 
-        // Assemble the lower band: row i holds columns i − b ..= i.
+        // Assemble the lower band by columns: column j holds rows
+        // j ..= j + b, entry (i, j) at `j w + i − j`.
         let perm = &self.perm;
         let band = &mut self.band;
         band.clear();
         band.resize(len * w, 0.0);
         for (c, &d) in a.diag.iter().enumerate() {
-            band[perm[c] * w + bw] = d;
+            band[perm[c] * w] = d;
         }
         for axis in 0..3 {
             let off = &a.off[axis];
@@ -1142,16 +1155,17 @@ impl PressureSolver for BandedCholesky {
                     let i = perm[c];
                     let j = perm[partner + (c - lo)];
                     if i == j {
-                        band[i * w + bw] += 2.0 * v;
+                        band[i * w] += 2.0 * v;
                     } else {
                         let (row, col) = if i > j { (i, j) } else { (j, i) };
-                        band[row * w + bw + col - row] += v;
+                        band[col * w + row - col] += v;
                     }
                 }
             });
         }
-        for (i, chunk) in band.chunks_exact(w).enumerate() {
-            let d = chunk[bw];
+        self.diag.clear();
+        self.diag.extend(band.iter().step_by(w));
+        for (i, &d) in self.diag.iter().enumerate() {
             if !d.is_finite() {
                 return Err(SolveError::NonFinite);
             }
@@ -1160,7 +1174,7 @@ impl PressureSolver for BandedCholesky {
                 return Err(SolveError::NotPositiveDefinite { row });
             }
         }
-        if let Err(i) = Self::factor(band, bw, len) {
+        if let Err(i) = Self::factor(band, &self.diag, bw, len) {
             if band.iter().any(|v| !v.is_finite()) {
                 return Err(SolveError::NonFinite);
             }
@@ -1751,6 +1765,18 @@ mod timing {
                 tp * 1e3 / len as f64,
                 td * 1e3 / len as f64
             );
+        }
+    }
+
+    #[test]
+    #[ignore = "profiling loop"]
+    fn profile_banded() {
+        let a = pressure_like([15, 45, 1], [false; 3], true, 1);
+        let b: Vec<f64> = (0..a.len()).map(|c| (c as f64).sin()).collect();
+        let mut x = vec![0.0; a.len()];
+        let mut s = BandedCholesky::new();
+        for _ in 0..20000 {
+            s.solve(&a, &b, &mut x, 1e-10).unwrap();
         }
     }
 

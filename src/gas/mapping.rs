@@ -30,7 +30,7 @@ use std::f64::consts::PI;
 /// Maximum number of cells (or faces) a cube may overlap along one axis. A
 /// cube of side s ≤ (MAX_SPAN − 1)·h always fits; wider cubes panic (the
 /// scenario should keep the porous-cube side below 11 cells).
-pub const MAX_SPAN: usize = 12;
+pub const MAX_SPAN: usize = 6;
 
 /// (π/6)^{1/3}: side of the cube of equal volume per unit diameter (Eq. 35).
 pub const EQUAL_VOLUME_CUBE: f64 = 0.805_995_977_008_234_8;
@@ -154,7 +154,7 @@ impl AxisWeights {
 ///   clipped to [a, b] and renormalised; indices k ∈ a..b. If a ≥ b there is
 ///   nothing to map onto: empty.
 /// - `clip = None` (periodic axis with `n` intervals): indices k mod n.
-#[inline]
+#[inline(always)]
 fn axis_overlap(
     t: f64,
     half: f64,
@@ -373,7 +373,7 @@ impl ExactSizeIterator for WeightsIter {}
 /// cells of `grid`: the fraction of the cube volume in each cell (Eq. 33/37),
 /// clipped at walls and renormalised, wrapped on periodic axes; sums to 1.
 /// In planar mode the z factor is the single cell with weight 1.
-#[inline]
+#[inline(always)]
 pub fn cell_weights(grid: &GridGeometry, pos: DVec3, side: f64) -> Weights {
     let n = grid.n;
     let strides = [1, n[0], n[0] * n[1]];
@@ -401,7 +401,7 @@ pub fn cell_weights(grid: &GridGeometry, pos: DVec3, side: f64) -> Weights {
 /// solved faces and momentum balances exactly. Empty when there is no solved
 /// face: n = 1 on a walled `axis`, or `axis` = 2 in planar mode. Indices are
 /// [`GridGeometry::face_index`] linear indices.
-#[inline]
+#[inline(always)]
 pub fn face_weights(grid: &GridGeometry, axis: usize, pos: DVec3, side: f64) -> Weights {
     if grid.planar && axis == 2 {
         return Weights::EMPTY;
