@@ -41,6 +41,48 @@ enum FaceRole {
     Outlet,
 }
 
+/// No neighbour (outside the domain, beyond the ghost layer).
+const NONE: u32 = u32::MAX;
+/// Flag of a neighbour code: the value is the negated referenced value
+/// (no-slip mirror).
+const NEGATE: u32 = 1 << 31;
+/// Flag of a neighbour code: a ghost value mirrored from inside the domain.
+const GHOST: u32 = 1 << 30;
+const INDEX: u32 = GHOST - 1;
+
+/// Velocity from a neighbour code (see [`InteriorFace::nb`]).
+#[inline(always)]
+fn fetch(u: &[f64], code: u32) -> Option<f64> {
+    if code == NONE {
+        return None;
+    }
+    let v = u[(code & INDEX) as usize];
+    Some(if code & NEGATE != 0 { -v } else { v })
+}
+
+/// The cells on either side of a face (`NONE` outside the domain).
+#[derive(Clone, Copy, Debug)]
+struct FaceCells {
+    lower: u32,
+    upper: u32,
+}
+
+/// Precomputed stencil of an interior (solved) face normal to axis `a`.
+#[derive(Clone, Copy, Debug)]
+struct InteriorFace {
+    face: u32,
+    lower: u32,
+    upper: u32,
+    /// Per axis b: velocity `a` at offsets −2, −1, +1, +2 along b, as a
+    /// face index with the [`GHOST`]/[`NEGATE`] flags, or [`NONE`].
+    nb: [[u32; 4]; 3],
+    /// Per axis b: faces normal to b whose mass fluxes make the fluxes
+    /// through the control-volume faces: lower = ½(m₀ + m₁), upper =
+    /// ½(m₂ + m₃). For b = a: faces f−1, f, f, f+1; for b ≠ a: the lower
+    /// b-faces of the cells below and above f, then their upper b-faces.
+    flux: [[u32; 4]; 3],
+}
+
 /// What one gas step did.
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
 pub struct StepStats {
@@ -100,6 +142,10 @@ pub struct GasPhase {
     pub drag_alpha: [Vec<f64>; 3],
     role: [Vec<FaceRole>; 3],
     base_role: [Vec<FaceRole>; 3],
+    cells_of_face: [Vec<FaceCells>; 3],
+    interior: [Vec<InteriorFace>; 3],
+    /// Old-level gas fraction on faces, per step.
+    eps_face_old: [Vec<f64>; 3],
     explicit: [Vec<f64>; 3],
     coefficient: [Vec<f64>; 3],
     mass_flux: [Vec<f64>; 3],
@@ -130,6 +176,38 @@ fn limited_face_value(flux: f64, pp: Option<f64>, p: f64, q: f64, qq: Option<f64
         return up;
     }
     up + 0.5 * van_leer((up - far) / jump) * jump
+}
+
+/// Gas fraction, gas fraction × density and density on a face: means of
+/// the two cells, or the one cell of a boundary face.
+#[inline(always)]
+fn face_values(link: &FaceCells, eps: &[f64], rho: &[f64]) -> (f64, f64, f64) {
+    match (link.lower != NONE, link.upper != NONE) {
+        (true, true) => {
+            let (l, u) = (link.lower as usize, link.upper as usize);
+            (
+                0.5 * (eps[l] + eps[u]),
+                0.5 * (eps[l] * rho[l] + eps[u] * rho[u]),
+                0.5 * (rho[l] + rho[u]),
+            )
+        }
+        _ => {
+            let c = if link.lower != NONE { link.lower } else { link.upper } as usize;
+            (eps[c], eps[c] * rho[c], rho[c])
+        }
+    }
+}
+
+/// Pressure gradient (upper − lower)/distance across a face (Pa/m); at a
+/// boundary (outlet) face the outlet pressure `p_out` acts half a cell
+/// outside the adjacent cell centre.
+#[inline(always)]
+fn face_gradient(link: &FaceCells, p: &[f64], p_out: f64, h: f64) -> f64 {
+    match (link.lower != NONE, link.upper != NONE) {
+        (true, true) => (p[link.upper as usize] - p[link.lower as usize]) / h,
+        (true, false) => (p_out - p[link.lower as usize]) / (0.5 * h),
+        _ => (p[link.upper as usize] - p_out) / (0.5 * h),
+    }
 }
 
 impl GasPhase {
@@ -165,6 +243,9 @@ impl GasPhase {
             drag_alpha: faces.map(|n| vec![0.0; n]),
             role: faces.map(|n| vec![FaceRole::Solved; n]),
             base_role: faces.map(|n| vec![FaceRole::Solved; n]),
+            cells_of_face: Default::default(),
+            interior: Default::default(),
+            eps_face_old: faces.map(|n| vec![0.0; n]),
             explicit: faces.map(|n| vec![0.0; n]),
             coefficient: faces.map(|n| vec![0.0; n]),
             mass_flux: faces.map(|n| vec![0.0; n]),
@@ -176,6 +257,7 @@ impl GasPhase {
             config,
         };
         gas.set_base_roles();
+        gas.build_topology();
         gas.hydrostatic_start();
         gas.apply_jets(0.0);
         for a in 0..3 {
@@ -199,6 +281,91 @@ impl GasPhase {
 
     fn is_velocity_axis(&self, a: usize) -> bool {
         a < 2 || !self.grid.planar
+    }
+
+    /// Neighbour tables of every face, so that the per-step loops need no
+    /// coordinate arithmetic.
+    fn build_topology(&mut self) {
+        let code = |grid: &GridGeometry, a: usize, g: Option<[usize; 3]>| {
+            g.map_or(NONE, |g| grid.face_index(a, g) as u32)
+        };
+        for a in 0..3 {
+            if !self.is_velocity_axis(a) {
+                continue;
+            }
+            let faces = self.grid.faces(a);
+            let mut cells = Vec::with_capacity(faces);
+            let mut interior = Vec::new();
+            for f in 0..faces {
+                let c = self.grid.face_coords(a, f);
+                let (lower, upper) = self.face_cells(a, c);
+                let lower = lower.map_or(NONE, |x| x as u32);
+                let upper = upper.map_or(NONE, |x| x as u32);
+                cells.push(FaceCells { lower, upper });
+                if self.base_role[a][f] != FaceRole::Solved {
+                    continue;
+                }
+                let mut nb = [[NONE; 4]; 3];
+                let mut flux = [[NONE; 4]; 3];
+                for &b in self.grid.velocity_axes() {
+                    for (slot, d) in [-2isize, -1, 1, 2].into_iter().enumerate() {
+                        nb[b][slot] = self.neighbour_code(a, c, b, d);
+                    }
+                    if b == a {
+                        let below = code(&self.grid, a, self.face_offset(a, c, a, -1));
+                        let above = code(&self.grid, a, self.face_offset(a, c, a, 1));
+                        flux[b] = [below, f as u32, f as u32, above];
+                    } else {
+                        let below = self.cell_offset(c, a, -1).expect("interior face");
+                        let above = c;
+                        let upper_face = |cell: [usize; 3]| {
+                            let mut up = cell;
+                            up[b] += 1;
+                            if self.grid.periodic[b] && up[b] == self.grid.n[b] {
+                                up[b] = 0;
+                            }
+                            self.grid.face_index(b, up) as u32
+                        };
+                        flux[b] = [
+                            self.grid.face_index(b, below) as u32,
+                            self.grid.face_index(b, above) as u32,
+                            upper_face(below),
+                            upper_face(above),
+                        ];
+                    }
+                }
+                interior.push(InteriorFace {
+                    face: f as u32,
+                    lower,
+                    upper,
+                    nb,
+                    flux,
+                });
+            }
+            self.cells_of_face[a] = cells;
+            self.interior[a] = interior;
+        }
+    }
+
+    /// Neighbour code of velocity `a` at face `f` shifted by `d` along `b`:
+    /// a face inside, a mirrored ghost one layer beyond a boundary normal to
+    /// b (b ≠ a), or [`NONE`].
+    fn neighbour_code(&self, a: usize, f: [usize; 3], b: usize, d: isize) -> u32 {
+        if let Some(g) = self.face_offset(a, f, b, d) {
+            return self.grid.face_index(a, g) as u32;
+        }
+        if b == a {
+            return NONE;
+        }
+        let Some(inner) = self.face_offset(a, f, b, d - d.signum()) else {
+            return NONE;
+        };
+        let index = self.grid.face_index(a, inner) as u32 | GHOST;
+        if self.tangential_ghost(b, d > 0, 1.0) < 0.0 {
+            index | NEGATE
+        } else {
+            index
+        }
     }
 
     /// Roles of the boundary faces from the face conditions (jets aside).
@@ -369,15 +536,6 @@ impl GasPhase {
         }
     }
 
-    /// Gas fraction times density on a face.
-    #[inline]
-    fn face_eps_rho(&self, eps: &[f64], rho: &[f64], a: usize, f: [usize; 3]) -> f64 {
-        match self.face_cells(a, f) {
-            (Some(l), Some(u)) => 0.5 * (eps[l] * rho[l] + eps[u] * rho[u]),
-            (Some(c), None) | (None, Some(c)) => eps[c] * rho[c],
-            (None, None) => unreachable!("a face has at least one cell"),
-        }
-    }
 
     /// Ghost value of velocity component `a` across the boundary normal to
     /// `b` (b ≠ a) next to the interior value `inner`.
@@ -389,150 +547,104 @@ impl GasPhase {
         }
     }
 
-    /// Velocity `a` at face `f` shifted by `d` along `b`, with ghost
-    /// values one layer outside walls; `None` further out.
-    #[inline]
-    fn velocity_at(&self, a: usize, f: [usize; 3], b: usize, d: isize) -> Option<f64> {
-        if let Some(g) = self.face_offset(a, f, b, d) {
-            return Some(self.velocity[a][self.grid.face_index(a, g)]);
-        }
-        if b == a {
-            return None;
-        }
-        // One layer beyond the boundary normal to b: mirror of the inner value.
-        let inner = self.face_offset(a, f, b, d - d.signum())?;
-        if self.face_offset(a, inner, b, d.signum()).is_some() {
-            return None;
-        }
-        let v = self.velocity[a][self.grid.face_index(a, inner)];
-        Some(self.tangential_ghost(b, d > 0, v))
-    }
-
-    /// Mass flux (kg/(m² s)) through every face at the old level.
+    /// Mass flux (kg/(m² s)) through every face, and the gas fraction on
+    /// every face, at the old level.
     fn compute_mass_flux(&mut self) {
         for a in 0..3 {
             if !self.is_velocity_axis(a) {
                 continue;
             }
-            for f in 0..self.grid.faces(a) {
-                let c = self.grid.face_coords(a, f);
+            let eps = &self.gas_fraction_old;
+            let rho = &self.density;
+            for (f, link) in self.cells_of_face[a].iter().enumerate() {
+                let (e, er, r) = face_values(link, eps, rho);
+                self.eps_face_old[a][f] = e;
                 self.mass_flux[a][f] = match self.role[a][f] {
-                    FaceRole::Fixed(u) => self.face_average(&self.density, a, c) * u,
-                    _ => {
-                        self.face_eps_rho(&self.gas_fraction_old, &self.density, a, c)
-                            * self.velocity[a][f]
-                    }
+                    FaceRole::Fixed(u) => r * u,
+                    _ => er * self.velocity[a][f],
                 };
             }
         }
-    }
-
-    /// Mass flux of component `b` at face coords `f` (faces normal to b),
-    /// shifted by `d` along `a`; zero outside.
-    #[inline]
-    fn flux_at(&self, b: usize, f: [usize; 3]) -> f64 {
-        self.mass_flux[b][self.grid.face_index(b, f)]
     }
 
     /// Explicit momentum S_f (Eq. 40) of solved and outlet faces.
     fn explicit_momentum(&mut self, dt: f64) {
         let mu = self.config.viscosity;
-        let axes: Vec<usize> = self.grid.velocity_axes().to_vec();
-        for &a in &axes {
-            for f in 0..self.grid.faces(a) {
-                let role = self.role[a][f];
-                if matches!(role, FaceRole::Fixed(_)) {
-                    continue;
+        let axes = self.grid.velocity_axes();
+        for &a in axes {
+            let g = self.gravity[a];
+            for (f, link) in self.cells_of_face[a].iter().enumerate() {
+                if self.role[a][f] == FaceRole::Outlet {
+                    let (_, m_old, _) = face_values(link, &self.gas_fraction_old, &self.density_old);
+                    self.explicit[a][f] = m_old * (self.velocity[a][f] + dt * g);
                 }
-                let c = self.grid.face_coords(a, f);
-                let m_old = self.face_eps_rho(&self.gas_fraction_old, &self.density_old, a, c);
+            }
+            for stencil in &self.interior[a] {
+                let f = stencil.face as usize;
+                let link = FaceCells {
+                    lower: stencil.lower,
+                    upper: stencil.upper,
+                };
+                let (_, m_old, _) = face_values(&link, &self.gas_fraction_old, &self.density_old);
                 let u = self.velocity[a][f];
-                let mut s = m_old * u + dt * m_old * self.gravity[a];
-                if role == FaceRole::Solved {
-                    s -= dt * self.convection(a, c, &axes);
-                    s += dt * mu * self.diffusion(a, c, &axes);
-                }
-                self.explicit[a][f] = s;
+                let transport = self.convection(a, stencil, axes) - mu * self.diffusion(a, stencil, axes);
+                self.explicit[a][f] = m_old * (u + dt * g) - dt * transport;
             }
         }
     }
 
-    /// ∇·(ε ρ u u_a) at interior face `f` normal to `a` (old level).
-    fn convection(&self, a: usize, f: [usize; 3], axes: &[usize]) -> f64 {
+    /// ∇·(ε ρ u u_a) at an interior face normal to `a` (old level).
+    #[inline]
+    fn convection(&self, a: usize, s: &InteriorFace, axes: &[usize]) -> f64 {
+        let u = &self.velocity[a];
+        let u0 = u[s.face as usize];
         let mut total = 0.0;
-        let u0 = self.velocity[a][self.grid.face_index(a, f)];
         for &b in axes {
-            let h = self.grid.h[b];
-            let (flux_lo, flux_hi) = if b == a {
-                // Control-volume faces at the centres of the cells below
-                // and above: mean of the face fluxes either side.
-                let m0 = self.flux_at(a, f);
-                let lo = self
-                    .face_offset(a, f, a, -1)
-                    .map_or(m0, |g| self.flux_at(a, g));
-                let hi = self
-                    .face_offset(a, f, a, 1)
-                    .map_or(m0, |g| self.flux_at(a, g));
-                (0.5 * (lo + m0), 0.5 * (m0 + hi))
-            } else {
-                // Edges: mean of the b-fluxes of the two cells beside f.
-                let cells = [
-                    self.cell_offset(f, a, -1),
-                    (f[a] < self.grid.n[a]).then_some(f),
-                ];
-                let mut lo = 0.0;
-                let mut hi = 0.0;
-                for cell in cells.into_iter().flatten() {
-                    lo += 0.5 * self.flux_at(b, cell);
-                    let mut up = cell;
-                    up[b] += 1;
-                    if self.grid.periodic[b] && up[b] == self.grid.n[b] {
-                        up[b] = 0;
-                    }
-                    hi += 0.5 * self.flux_at(b, up);
-                }
-                (lo, hi)
-            };
-            let below = self.velocity_at(a, f, b, -1);
-            let above = self.velocity_at(a, f, b, 1);
+            let m = &self.mass_flux[b];
+            let pick = |i: u32| if i == NONE { None } else { Some(m[i as usize]) };
+            let [f0, f1, f2, f3] = s.flux[b];
+            let m1 = m[f1 as usize];
+            let m2 = m[f2 as usize];
+            let flux_lo = 0.5 * (pick(f0).unwrap_or(m1) + m1);
+            let flux_hi = 0.5 * (m2 + pick(f3).unwrap_or(m2));
+            let [c0, c1, c2, c3] = s.nb[b];
+            let below = fetch(u, c1);
+            let above = fetch(u, c2);
             let value_hi = match above {
-                Some(q) => limited_face_value(flux_hi, below, u0, q, self.velocity_at(a, f, b, 2)),
+                Some(q) => limited_face_value(flux_hi, below, u0, q, fetch(u, c3)),
                 None => u0,
             };
             let value_lo = match below {
-                Some(p) => limited_face_value(flux_lo, self.velocity_at(a, f, b, -2), p, u0, above),
+                Some(p) => limited_face_value(flux_lo, fetch(u, c0), p, u0, above),
                 None => u0,
             };
-            total += (flux_hi * value_hi - flux_lo * value_lo) / h;
+            total += (flux_hi * value_hi - flux_lo * value_lo) / self.grid.h[b];
         }
         total
     }
 
-    /// ∇·(ε ∇u_a) at interior face `f` normal to `a` (old level), times 1/μ.
-    fn diffusion(&self, a: usize, f: [usize; 3], axes: &[usize]) -> f64 {
-        let fi = self.grid.face_index(a, f);
-        let u0 = self.velocity[a][fi];
-        let eps_f = self.face_average(&self.gas_fraction_old, a, f);
+    /// ∇·(ε ∇u_a) at an interior face normal to `a` (old level), times 1/μ.
+    #[inline]
+    fn diffusion(&self, a: usize, s: &InteriorFace, axes: &[usize]) -> f64 {
+        let u = &self.velocity[a];
+        let f = s.face as usize;
+        let u0 = u[f];
+        let eps_face = &self.eps_face_old[a];
+        let eps_f = eps_face[f];
         let mut total = 0.0;
         for &b in axes {
             let h2 = self.grid.h[b] * self.grid.h[b];
-            for d in [-1isize, 1] {
-                let Some(v) = self.velocity_at(a, f, b, d) else {
+            for (code, cell) in [(s.nb[b][1], s.lower), (s.nb[b][2], s.upper)] {
+                let Some(v) = fetch(u, code) else {
                     continue;
                 };
                 let eps = if b == a {
                     // The cell between the two faces.
-                    let cell = if d < 0 {
-                        self.cell_offset(f, a, -1)
-                    } else {
-                        Some(f)
-                    };
-                    cell.map_or(eps_f, |c| self.gas_fraction_old[self.grid.cell_index(c)])
+                    self.gas_fraction_old[cell as usize]
+                } else if code & GHOST != 0 {
+                    eps_f
                 } else {
-                    match self.face_offset(a, f, b, d) {
-                        Some(g) => 0.5 * (eps_f + self.face_average(&self.gas_fraction_old, a, g)),
-                        None => eps_f,
-                    }
+                    0.5 * (eps_f + eps_face[(code & INDEX) as usize])
                 };
                 total += eps * (v - u0) / h2;
             }
@@ -631,26 +743,6 @@ impl GasPhase {
         worst
     }
 
-    /// Pressure difference driving face `f` normal to `a`, over its
-    /// distance: (p_upper − p_lower)/Δ, with the outlet pressure half a
-    /// cell outside at an outlet face.
-    #[inline]
-    fn face_gradient(&self, a: usize, f: [usize; 3]) -> (f64, f64) {
-        let h = self.grid.h[a];
-        match self.face_cells(a, f) {
-            (Some(l), Some(u)) => ((self.pressure[u] - self.pressure[l]) / h, h),
-            (Some(l), None) => (
-                (self.config.pressure - self.pressure[l]) / (0.5 * h),
-                0.5 * h,
-            ),
-            (None, Some(u)) => (
-                (self.pressure[u] - self.config.pressure) / (0.5 * h),
-                0.5 * h,
-            ),
-            (None, None) => unreachable!("a face has at least one cell"),
-        }
-    }
-
     /// New face velocities from the current pressures (Eq. 45) and the
     /// cell mass residuals (Eq. 46).
     fn momentum_and_residual(&mut self, dt: f64) {
@@ -658,36 +750,33 @@ impl GasPhase {
             *r = self.gas_fraction[c] * self.density[c]
                 - self.gas_fraction_old[c] * self.density_old[c];
         }
+        let p_out = self.config.pressure;
         for a in 0..3 {
             if !self.is_velocity_axis(a) {
                 continue;
             }
             let h = self.grid.h[a];
-            for f in 0..self.grid.faces(a) {
-                let c = self.grid.face_coords(a, f);
+            for (f, link) in self.cells_of_face[a].iter().enumerate() {
+                let (eps, eps_rho, rho) = face_values(link, &self.gas_fraction, &self.density);
                 let flux = match self.role[a][f] {
-                    FaceRole::Fixed(u) => self.face_average(&self.density, a, c) * u,
+                    FaceRole::Fixed(u) => rho * u,
                     _ => {
-                        let eps = self.face_average(&self.gas_fraction, a, c);
-                        let coefficient =
-                            self.face_eps_rho(&self.gas_fraction, &self.density, a, c)
-                                + dt * self.drag_beta[a][f];
-                        let (gradient, _) = self.face_gradient(a, c);
+                        let coefficient = eps_rho + dt * self.drag_beta[a][f];
+                        let gradient = face_gradient(link, &self.pressure, p_out, h);
                         let u = (self.explicit[a][f]
                             - dt * self.drag_alpha[a][f]
                             - dt * eps * gradient)
                             / coefficient;
                         self.velocity[a][f] = u;
                         self.coefficient[a][f] = coefficient;
-                        eps * self.face_average(&self.density, a, c) * u
+                        eps * rho * u
                     }
                 };
-                let (lower, upper) = self.face_cells(a, c);
-                if let Some(l) = lower {
-                    self.residual[l] += dt * flux / h;
+                if link.lower != NONE {
+                    self.residual[link.lower as usize] += dt * flux / h;
                 }
-                if let Some(u) = upper {
-                    self.residual[u] -= dt * flux / h;
+                if link.upper != NONE {
+                    self.residual[link.upper as usize] -= dt * flux / h;
                 }
             }
         }
@@ -722,30 +811,27 @@ impl GasPhase {
         }
         let mut any_outlet = false;
         for a in 0..3 {
-            if !(a < 2 || !self.grid.planar) {
+            if !self.is_velocity_axis(a) {
                 continue;
             }
             let h = self.grid.h[a];
-            for f in 0..self.grid.faces(a) {
+            for (f, link) in self.cells_of_face[a].iter().enumerate() {
                 if matches!(self.role[a][f], FaceRole::Fixed(_)) {
                     continue;
                 }
-                let c = self.grid.face_coords(a, f);
-                let eps = self.face_average(&self.gas_fraction, a, c);
-                let rho = self.face_average(&self.density, a, c);
-                let (_, distance) = self.face_gradient(a, c);
+                let (eps, _, rho) = face_values(link, &self.gas_fraction, &self.density);
+                let both = link.lower != NONE && link.upper != NONE;
+                let distance = if both { h } else { 0.5 * h };
                 let k = dt * dt * eps * eps * rho / (self.coefficient[a][f] * h * distance);
-                match self.face_cells(a, c) {
-                    (Some(l), Some(u)) => {
-                        m.diag[l] += k;
-                        m.diag[u] += k;
-                        m.off[a][l] -= k;
-                    }
-                    (Some(x), None) | (None, Some(x)) => {
-                        any_outlet = true;
-                        m.diag[x] += k;
-                    }
-                    (None, None) => unreachable!("a face has at least one cell"),
+                if both {
+                    let (l, u) = (link.lower as usize, link.upper as usize);
+                    m.diag[l] += k;
+                    m.diag[u] += k;
+                    m.off[a][l] -= k;
+                } else {
+                    any_outlet = true;
+                    let x = if link.lower != NONE { link.lower } else { link.upper };
+                    m.diag[x as usize] += k;
                 }
             }
         }
