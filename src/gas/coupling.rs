@@ -19,9 +19,10 @@
 
 use glam::DVec3;
 
-use super::config::{PlanarPorosity, PorosityMapping};
+use super::config::PlanarPorosity;
 use super::drag::particle_drag_coefficient;
-use super::mapping::{Weights, cell_weights, face_weights};
+use super::grid::GridGeometry;
+use super::mapping::{AxisWeights, axis_weights, hoomans_2d_to_3d, mapping_side};
 use super::solver::GasPhase;
 use crate::engine::ParticleView;
 
@@ -30,11 +31,75 @@ use crate::engine::ParticleView;
 /// in cells much smaller than particles.
 pub const MIN_GAS_FRACTION: f64 = 0.3;
 
+/// The 1D weights of one particle: per axis over the cells and over the
+/// face control volumes. Products give the cell weights and, per velocity
+/// axis a, the face weights (faces along a, cells along the others).
+#[derive(Clone, Copy, Debug)]
+struct ParticleStencil {
+    cells: [AxisWeights; 3],
+    faces: [AxisWeights; 3],
+}
+
+impl ParticleStencil {
+    fn new(grid: &GridGeometry, pos: DVec3, side: f64) -> Self {
+        ParticleStencil {
+            cells: std::array::from_fn(|a| axis_weights(grid, a, pos, side, false)),
+            faces: std::array::from_fn(|a| axis_weights(grid, a, pos, side, true)),
+        }
+    }
+
+    /// Calls `f(linear index, weight)` over the cells (`axis = None`) or the
+    /// faces normal to `axis`, with the index strides of that array.
+    #[inline(always)]
+    fn for_each(&self, axis: Option<usize>, strides: [usize; 3], mut f: impl FnMut(usize, f64)) {
+        let pick = |b: usize| {
+            if axis == Some(b) {
+                self.faces[b].entries()
+            } else {
+                self.cells[b].entries()
+            }
+        };
+        let (ox, wx) = pick(0);
+        let (oy, wy) = pick(1);
+        let (oz, wz) = pick(2);
+        for (&k, &w3) in oz.iter().zip(wz) {
+            let base_z = k * strides[2];
+            for (&j, &w2) in oy.iter().zip(wy) {
+                let base = base_z + j * strides[1];
+                let w23 = w3 * w2;
+                for (&i, &w1) in ox.iter().zip(wx) {
+                    f(base + i, w23 * w1);
+                }
+            }
+        }
+    }
+
+    #[inline(always)]
+    fn interpolate(&self, axis: Option<usize>, strides: [usize; 3], field: &[f64]) -> f64 {
+        let mut sum = 0.0;
+        self.for_each(axis, strides, |i, w| sum += w * field[i]);
+        sum
+    }
+}
+
+/// Index strides of the cell array and of the face arrays per axis.
+fn strides(grid: &GridGeometry) -> ([usize; 3], [[usize; 3]; 3]) {
+    let n = grid.n;
+    let faces = std::array::from_fn(|a| {
+        let d = grid.face_dims(a);
+        [1, d[0], d[0] * d[1]]
+    });
+    ([1, n[0], n[0] * n[1]], faces)
+}
+
 /// Per-particle coupling data, indexed by engine slot.
 #[derive(Default)]
 pub struct Coupling {
     /// Drag coefficient K = V_p β/ε_s (kg/s) per slot.
     drag_coefficient: Vec<f64>,
+    /// Mapping stencil per slot, from [`Coupling::prepare`] (positions do
+    /// not change before [`Coupling::kicks`]).
+    stencils: Vec<Option<ParticleStencil>>,
     /// Velocity kick per slot (m/s) from the last [`Coupling::kicks`].
     kicks: Vec<DVec3>,
     solids: Vec<f64>,
@@ -51,56 +116,57 @@ pub struct Coupling {
 }
 
 impl Coupling {
-    /// Side of the cube that represents a particle of radius `r` in the
-    /// mapping: equal volume (Eq. 33), the porous cube (Eq. 34) or, for
-    /// planar beds with Hoomans' conversion, the square of equal area.
-    fn cube_side(gas: &GasPhase, r: f64) -> f64 {
-        let d = 2.0 * r;
-        match gas.config.porosity {
-            PorosityMapping::PorousCube { factor } => factor * d,
-            PorosityMapping::VolumeWeighting => {
-                if gas.grid.planar && gas.config.planar_porosity == PlanarPorosity::Hoomans {
-                    r * std::f64::consts::PI.sqrt()
-                } else {
-                    d * (std::f64::consts::PI / 6.0).cbrt()
-                }
-            }
-        }
+    /// Side of the cube (or, for planar beds with Hoomans' conversion, the
+    /// square) that represents a particle of radius `r` (Eq. 33–34).
+    fn side(gas: &GasPhase, r: f64) -> f64 {
+        mapping_side(
+            &gas.grid,
+            gas.config.porosity,
+            gas.config.planar_porosity,
+            2.0 * r,
+        )
     }
 
-    /// Gas fraction per cell from the particles (Eq. 33 or 37; planar beds
-    /// with Hoomans' 2D-to-3D conversion), clamped at [`MIN_GAS_FRACTION`].
+    /// Maps the particles in `slots` (`None`: free slot) and caches their
+    /// stencils; returns the gas fraction per cell (Eq. 33 or 37; planar
+    /// beds with Hoomans' 2D-to-3D conversion), clamped at
+    /// [`MIN_GAS_FRACTION`].
     pub fn gas_fraction(
         &mut self,
         gas: &GasPhase,
-        particles: impl Iterator<Item = ParticleView>,
+        slots: impl Iterator<Item = Option<ParticleView>>,
     ) -> &[f64] {
         let grid = &gas.grid;
-        let cells = grid.cells();
-        self.solids.clear();
-        self.solids.resize(cells, 0.0);
+        let (cell_strides, _) = strides(grid);
         let hoomans = grid.planar && gas.config.planar_porosity == PlanarPorosity::Hoomans;
         let cell_measure = if hoomans {
             grid.h.x * grid.h.y
         } else {
             grid.cell_volume()
         };
-        for p in particles {
+        self.solids.clear();
+        self.solids.resize(grid.cells(), 0.0);
+        self.stencils.clear();
+        for slot in slots {
+            let Some(p) = slot else {
+                self.stencils.push(None);
+                continue;
+            };
+            let stencil = ParticleStencil::new(grid, p.pos, Self::side(gas, p.radius));
             let amount = if hoomans {
                 std::f64::consts::PI * p.radius * p.radius
             } else {
                 4.0 / 3.0 * std::f64::consts::PI * p.radius.powi(3)
             };
-            let side = Self::cube_side(gas, p.radius);
-            cell_weights(grid, p.pos, side).scatter(amount, &mut self.solids);
+            let solids = &mut self.solids;
+            stencil.for_each(None, cell_strides, |c, w| solids[c] += amount * w);
+            self.stencils.push(Some(stencil));
         }
         self.gas_fraction.clear();
         for &s in &self.solids {
             let mut fraction = s / cell_measure;
             if hoomans {
-                // Hoomans et al. (1996): ε_s,3D = 2/√(π√3) ε_s,2D^{3/2}.
-                let k = 2.0 / (std::f64::consts::PI * 3f64.sqrt()).sqrt();
-                fraction = k * fraction.powf(1.5);
+                fraction = hoomans_2d_to_3d(fraction);
             }
             let mut eps = 1.0 - fraction;
             if eps < MIN_GAS_FRACTION {
@@ -120,43 +186,41 @@ impl Coupling {
         gas: &mut GasPhase,
         slots: impl Iterator<Item = Option<ParticleView>> + Clone,
     ) {
+        self.gas_fraction(gas, slots.clone());
         if gas.config.two_way {
-            self.gas_fraction(gas, slots.clone().flatten());
-            let new = std::mem::take(&mut self.gas_fraction);
-            gas.set_gas_fraction(&new);
-            self.gas_fraction = new;
+            gas.set_gas_fraction(&self.gas_fraction);
         }
         for a in 0..3 {
             gas.drag_beta[a].iter_mut().for_each(|x| *x = 0.0);
             gas.drag_alpha[a].iter_mut().for_each(|x| *x = 0.0);
         }
+        let (cell_strides, face_strides) = strides(&gas.grid);
         let volume = gas.grid.cell_volume();
         let law = gas.config.drag;
         let mu = gas.config.viscosity;
+        let axes = gas.grid.velocity_axes();
         self.drag_coefficient.clear();
-        for slot in slots {
-            let Some(p) = slot else {
+        for (slot, stencil) in slots.zip(&self.stencils) {
+            let (Some(p), Some(st)) = (slot, stencil) else {
                 self.drag_coefficient.push(0.0);
                 continue;
             };
-            let side = Self::cube_side(gas, p.radius);
-            let weights = cell_weights(&gas.grid, p.pos, side);
-            let eps = weights.interpolate(&gas.gas_fraction);
-            let rho = weights.interpolate(&gas.density);
-            let faces = face_weights_all(gas, p.pos, side);
+            let eps = st.interpolate(None, cell_strides, &gas.gas_fraction);
+            let rho = st.interpolate(None, cell_strides, &gas.density);
             let mut u = DVec3::ZERO;
-            for &a in gas.grid.velocity_axes() {
-                u[a] = faces[a].interpolate(&gas.velocity[a]);
+            for &a in axes {
+                u[a] = st.interpolate(Some(a), face_strides[a], &gas.velocity[a]);
             }
-            let k =
-                particle_drag_coefficient(law, eps, rho, mu, 2.0 * p.radius, (u - p.vel).length());
+            let slip = (u - p.vel).length();
+            let k = particle_drag_coefficient(law, eps, rho, mu, 2.0 * p.radius, slip);
             self.drag_coefficient.push(k);
             if gas.config.two_way {
-                for &a in gas.grid.velocity_axes() {
+                for &a in axes {
                     let (beta, alpha) = (k / volume, -k * p.vel[a] / volume);
-                    faces[a].for_each(|f, w| {
-                        gas.drag_beta[a][f] += w * beta;
-                        gas.drag_alpha[a][f] += w * alpha;
+                    let (betas, alphas) = (&mut gas.drag_beta[a], &mut gas.drag_alpha[a]);
+                    st.for_each(Some(a), face_strides[a], |f, w| {
+                        betas[f] += w * beta;
+                        alphas[f] += w * alpha;
                     });
                 }
             }
@@ -164,8 +228,9 @@ impl Coupling {
     }
 
     /// Step 3: velocity kick per slot (m/s) over a flow step `dt` from drag,
-    /// pressure gradient and gravity, with the gas at its new level. Also
-    /// books the drag impulse on both sides.
+    /// pressure gradient and gravity, with the gas at its new level. The
+    /// particles must not have moved since [`Coupling::prepare`]. Also books
+    /// the drag impulse on both sides.
     pub fn kicks(
         &mut self,
         gas: &GasPhase,
@@ -175,19 +240,18 @@ impl Coupling {
     ) -> &[DVec3] {
         self.kicks.clear();
         face_pressure_gradient(gas, &mut self.gradient);
+        let (_, face_strides) = strides(&gas.grid);
         let mut to_particles = DVec3::ZERO;
-        for (slot, &k) in slots.zip(&self.drag_coefficient) {
-            let Some(p) = slot else {
+        for ((slot, stencil), &k) in slots.zip(&self.stencils).zip(&self.drag_coefficient) {
+            let (Some(p), Some(st)) = (slot, stencil) else {
                 self.kicks.push(DVec3::ZERO);
                 continue;
             };
-            let side = Self::cube_side(gas, p.radius);
-            let faces = face_weights_all(gas, p.pos, side);
             let mut u = DVec3::ZERO;
             let mut grad_p = DVec3::ZERO;
             for &a in gas.grid.velocity_axes() {
-                u[a] = faces[a].interpolate(&gas.velocity[a]);
-                grad_p[a] = faces[a].interpolate(&self.gradient[a]);
+                u[a] = st.interpolate(Some(a), face_strides[a], &gas.velocity[a]);
+                grad_p[a] = st.interpolate(Some(a), face_strides[a], &self.gradient[a]);
             }
             let volume = 4.0 / 3.0 * std::f64::consts::PI * p.radius.powi(3);
             let drag = k * (u - p.vel);
@@ -211,17 +275,6 @@ impl Coupling {
         }
         &self.kicks
     }
-}
-
-/// Face weights of a particle for each velocity axis (empty for z in
-/// planar mode).
-#[inline]
-fn face_weights_all(gas: &GasPhase, pos: DVec3, side: f64) -> [Weights; 3] {
-    let mut out = [Weights::EMPTY; 3];
-    for &a in gas.grid.velocity_axes() {
-        out[a] = face_weights(&gas.grid, a, pos, side);
-    }
-    out
 }
 
 /// Pressure gradient normal to each interior face (Pa/m), per axis

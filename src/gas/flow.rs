@@ -92,7 +92,7 @@ impl GasRun {
         if self.gas.config.two_way {
             let eps = self
                 .coupling
-                .gas_fraction(&self.gas, engine.particles())
+                .gas_fraction(&self.gas, engine.particles().map(Some))
                 .to_vec();
             self.gas.set_gas_fraction(&eps);
             self.gas.set_gas_fraction(&eps);

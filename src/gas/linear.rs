@@ -361,6 +361,8 @@ fn sweep_plane(v: &mut [f64], p0: usize, nx: usize, ny: usize, mut update: impl 
 /// used), so that stencil loops need no boundary branches.
 #[derive(Clone, Debug, Default)]
 struct PcgWork {
+    /// Grid the buffers are sized for.
+    shape: Option<[usize; 3]>,
     n: [usize; 3],
     pad: usize,
     /// Couplings to the `+axis` neighbour with the last layer of each axis
@@ -396,15 +398,29 @@ impl PcgWork {
     fn prepare(&mut self, a: &StencilMatrix) -> Result<(), SolveError> {
         let len = a.len();
         let [nx, ny, nz] = a.n;
-        self.n = a.n;
-        self.pad = if nz > 1 { nx * ny } else { nx }.max(1);
-        let padded = len + 2 * self.pad;
+        if self.shape != Some(a.n) {
+            // New grid: (re)size everything; the padding stays zero from
+            // here on (only the interior is ever written).
+            self.n = a.n;
+            self.pad = if nz > 1 { nx * ny } else { nx }.max(1);
+            let padded = len + 2 * self.pad;
+            let [w0, w1, w2] = &mut self.w;
+            let [f0, f1, f2] = &mut self.f;
+            let [g0, g1, g2] = &mut self.g;
+            for v in [w0, w1, w2, f0, f1, f2, g0, g1, g2, &mut self.inv_d, &mut self.z, &mut self.p] {
+                v.clear();
+                v.resize(padded, 0.0);
+            }
+            for v in [&mut self.r, &mut self.q, &mut self.jac] {
+                v.clear();
+                v.resize(len, 0.0);
+            }
+            self.shape = Some(a.n);
+        }
         let pad = self.pad;
         for axis in 0..3 {
             assert_eq!(a.off[axis].len(), len, "StencilMatrix: off has wrong length");
             let w = &mut self.w[axis];
-            w.clear();
-            w.resize(padded, 0.0);
             w[pad..pad + len].copy_from_slice(&a.off[axis]);
             let stride: usize = a.n[..axis].iter().product();
             let block = stride * a.n[axis];
@@ -412,13 +428,6 @@ impl PcgWork {
                 w[pad + b0 + block - stride..pad + b0 + block].fill(0.0);
             }
             self.wrap[axis] = a.periodic[axis] && a.n[axis] >= 2;
-        }
-        for v in [&mut self.z, &mut self.p] {
-            v.clear();
-            v.resize(padded, 0.0);
-        }
-        for v in [&mut self.r, &mut self.q, &mut self.jac] {
-            v.resize(len, 0.0);
         }
         a.effective_diag(&mut self.aeff)?;
         for (j, &d) in self.jac.iter_mut().zip(&self.aeff) {
@@ -443,23 +452,17 @@ impl PcgWork {
         // Coefficients of the lower neighbours' inverse pivots, kept in `f`
         // until the pivots are known.
         for axis in 0..3 {
-            let [o1, o2] = [(axis + 1) % 3, (axis + 2) % 3];
-            let s = strides[axis];
-            let f = &mut self.f[axis];
-            f.clear();
-            f.resize(padded, 0.0);
             if axis == 2 && nz == 1 {
-                continue;
+                continue; // f[2] stays zero
             }
-            let (w, wo1, wo2) = (&self.w[axis], &self.w[o1], &self.w[o2]);
-            for p in pad..pad + len {
-                let q = p - s;
-                f[p] = w[q] * (w[q] + alpha * (wo1[q] + wo2[q]));
+            let [o1, o2] = [(axis + 1) % 3, (axis + 2) % 3];
+            let q = pad - strides[axis];
+            let (w, wo1, wo2) = (&self.w[axis][q..q + len], &self.w[o1][q..q + len], &self.w[o2][q..q + len]);
+            for (((f, &w), &u), &v) in self.f[axis][pad..pad + len].iter_mut().zip(w).zip(wo1).zip(wo2) {
+                *f = w * (w + alpha * (u + v));
             }
         }
         let inv_d = &mut self.inv_d;
-        inv_d.clear();
-        inv_d.resize(padded, 0.0);
         let [f0, f1, f2] = &self.f;
         let aeff = &self.aeff;
         let mut modified = 0;
@@ -493,20 +496,19 @@ impl PcgWork {
         if let Some(row) = breakdown {
             return Err(row);
         }
+        let inv_d = &self.inv_d[pad..pad + len];
         for axis in 0..3 {
-            let w = &self.w[axis];
-            let s = strides[axis];
-            let f = &mut self.f[axis];
-            let g = &mut self.g[axis];
-            g.clear();
-            g.resize(padded, 0.0);
             if axis == 2 && nz == 1 {
-                continue;
+                continue; // f[2], g[2] stay zero
             }
-            let mirror = 2 * pad + len - 1;
-            for p in pad..pad + len {
-                f[p] = w[p - s] * inv_d[p];
-                g[mirror - p] = w[p] * inv_d[p];
+            let w = &self.w[axis];
+            let q = pad - strides[axis];
+            for ((f, &w), &id) in self.f[axis][pad..pad + len].iter_mut().zip(&w[q..q + len]).zip(inv_d) {
+                *f = w * id;
+            }
+            let g = self.g[axis][pad..pad + len].iter_mut().rev();
+            for ((g, &w), &id) in g.zip(&w[pad..pad + len]).zip(inv_d) {
+                *g = w * id;
             }
         }
         Ok(())

@@ -137,6 +137,12 @@ impl AxisWeights {
         self.len == 0
     }
 
+    /// The offsets and weights as slices of equal length.
+    #[inline]
+    pub fn entries(&self) -> (&[usize], &[f64]) {
+        (&self.offset[..self.len], &self.weight[..self.len])
+    }
+
     /// (strided offset, weight) pairs.
     #[inline]
     pub fn iter(&self) -> impl Iterator<Item = (usize, f64)> + '_ {
@@ -368,6 +374,29 @@ impl Iterator for WeightsIter {
 }
 
 impl ExactSizeIterator for WeightsIter {}
+
+/// 1D weights of the cube of side `side` (m) centred at `pos` along `axis`
+/// with unstrided indices: over the cells (`faces == false`), or over the
+/// control volumes of the faces normal to `axis` (`faces == true`, interior
+/// faces only on a walled axis, as in [`face_weights`]). The product of
+/// these factors over the axes gives [`cell_weights`] and [`face_weights`].
+#[inline(always)]
+pub fn axis_weights(grid: &GridGeometry, axis: usize, pos: DVec3, side: f64, faces: bool) -> AxisWeights {
+    if axis == 2 && grid.planar {
+        return if faces { AxisWeights::EMPTY } else { AxisWeights::single(0) };
+    }
+    let h = grid.h[axis];
+    let t = (pos[axis] - grid.lo[axis]) / h;
+    let n = grid.n[axis];
+    let nf = n as f64;
+    if faces {
+        let clip = (!grid.periodic[axis]).then_some((1.0, nf));
+        axis_overlap(t + 0.5, 0.5 * side / h, n, clip, 1)
+    } else {
+        let clip = (!grid.periodic[axis]).then_some((0.0, nf));
+        axis_overlap(t, 0.5 * side / h, n, clip, 1)
+    }
+}
 
 /// Weights of the cube of side `side` (m) centred at `pos` (m) over the
 /// cells of `grid`: the fraction of the cube volume in each cell (Eq. 33/37),
