@@ -22,7 +22,7 @@ use glam::DVec3;
 use super::config::PlanarPorosity;
 use super::drag::particle_drag_coefficient;
 use super::grid::GridGeometry;
-use super::mapping::{AxisWeights, axis_weights, hoomans_2d_to_3d, mapping_side};
+use super::mapping::{AxisWeights, axis_weights_into, hoomans_2d_to_3d, mapping_side};
 use super::solver::GasPhase;
 use crate::engine::ParticleView;
 
@@ -41,10 +41,17 @@ struct ParticleStencil {
 }
 
 impl ParticleStencil {
-    fn new(grid: &GridGeometry, pos: DVec3, side: f64) -> Self {
-        ParticleStencil {
-            cells: std::array::from_fn(|a| axis_weights(grid, a, pos, side, false)),
-            faces: std::array::from_fn(|a| axis_weights(grid, a, pos, side, true)),
+    const EMPTY: ParticleStencil = ParticleStencil {
+        cells: [AxisWeights::EMPTY; 3],
+        faces: [AxisWeights::EMPTY; 3],
+    };
+
+    /// Fills the stencil of a particle at `pos` mapped as a cube of `side`.
+    #[inline(always)]
+    fn fill(&mut self, grid: &GridGeometry, pos: DVec3, side: f64) {
+        for a in 0..3 {
+            axis_weights_into(&mut self.cells[a], grid, a, pos, side, false);
+            axis_weights_into(&mut self.faces[a], grid, a, pos, side, true);
         }
     }
 
@@ -152,7 +159,11 @@ impl Coupling {
                 self.stencils.push(None);
                 continue;
             };
-            let stencil = ParticleStencil::new(grid, p.pos, Self::side(gas, p.radius));
+            self.stencils.push(Some(ParticleStencil::EMPTY));
+            let Some(Some(stencil)) = self.stencils.last_mut() else {
+                unreachable!("just pushed")
+            };
+            stencil.fill(grid, p.pos, Self::side(gas, p.radius));
             let amount = if hoomans {
                 std::f64::consts::PI * p.radius * p.radius
             } else {
@@ -160,7 +171,6 @@ impl Coupling {
             };
             let solids = &mut self.solids;
             stencil.for_each(None, cell_strides, |c, w| solids[c] += amount * w);
-            self.stencils.push(Some(stencil));
         }
         self.gas_fraction.clear();
         for &s in &self.solids {

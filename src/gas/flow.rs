@@ -40,6 +40,8 @@ pub struct GasTotals {
     pub drag_impulse_gas: [f64; 3],
     /// CPU time in the gas solver and the coupling (s).
     pub gas_cpu_seconds: f64,
+    /// Of which in the gas solver alone (s).
+    pub solver_cpu_seconds: f64,
 }
 
 #[derive(Clone, Copy, Debug, Default)]
@@ -110,7 +112,9 @@ impl GasRun {
         let start = crate::bench::cpu_time();
         let slots = (0..engine.slots()).map(|i| engine.particle(i));
         self.coupling.prepare(&mut self.gas, slots.clone());
+        let solver_start = crate::bench::cpu_time();
         let stats = self.gas.step(dt)?;
+        self.totals.solver_cpu_seconds += crate::bench::cpu_time() - solver_start;
         let kicks = self.coupling.kicks(&self.gas, slots, gravity, dt).to_vec();
         engine.kick_slots(&kicks);
         let courant = self.gas.courant(dt);

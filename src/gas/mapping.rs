@@ -101,7 +101,7 @@ pub struct AxisWeights {
 }
 
 impl AxisWeights {
-    const EMPTY: AxisWeights = AxisWeights {
+    pub const EMPTY: AxisWeights = AxisWeights {
         len: 0,
         offset: [0; MAX_SPAN],
         weight: [0.0; MAX_SPAN],
@@ -168,13 +168,60 @@ fn axis_overlap(
     clip: Option<(f64, f64)>,
     stride: usize,
 ) -> AxisWeights {
-    debug_assert!(t.is_finite() && half >= 0.0, "t {t} half {half}");
     let mut out = AxisWeights::EMPTY;
+    axis_overlap_into(&mut out, t, half, n, clip, stride);
+    out
+}
+
+/// [`axis_overlap`] written into `out` (cleared first), avoiding a copy
+/// of the weights in hot loops.
+#[inline(always)]
+fn axis_overlap_into(
+    out: &mut AxisWeights,
+    t: f64,
+    half: f64,
+    n: usize,
+    clip: Option<(f64, f64)>,
+    stride: usize,
+) {
+    debug_assert!(t.is_finite() && half >= 0.0, "t {t} half {half}");
+    out.len = 0;
     let (mut a, mut b) = (t - half, t + half);
+    // Fast path (the common case of cells wider than particles): the
+    // segment lies inside the domain and touches at most two intervals.
+    if half > 0.0 && half <= 0.5 {
+        let inside = match clip {
+            Some((lo, hi)) => a >= lo && b <= hi,
+            None => true,
+        };
+        if inside {
+            let k = a.floor();
+            let split = k + 1.0;
+            let wrap = |k: f64| match clip {
+                Some(_) => k as usize,
+                None => (k as i64).rem_euclid(n as i64) as usize,
+            };
+            let first = (split.min(b) - a) / (b - a);
+            if first >= 1.0 - SLIVER {
+                out.push(wrap(k) * stride, 1.0);
+            } else if first <= SLIVER {
+                out.push(wrap(split) * stride, 1.0);
+            } else {
+                out.push(wrap(k) * stride, first);
+                out.push(wrap(split) * stride, 1.0 - first);
+            }
+            if clip.is_none() && out.len == 2 && out.offset[0] == out.offset[1] {
+                // One periodic interval: both pieces are the same cell.
+                out.weight[0] = 1.0;
+                out.len = 1;
+            }
+            return;
+        }
+    }
     match clip {
         Some((lo, hi)) => {
             if hi <= lo {
-                return out;
+                return;
             }
             a = a.max(lo);
             b = b.min(hi);
@@ -182,7 +229,7 @@ fn axis_overlap(
                 // Point particle (or centre outside the domain): nearest interval.
                 let k = t.clamp(lo, hi).floor().min(hi - 1.0);
                 out.push(k as usize * stride, 1.0);
-                return out;
+                return;
             }
         }
         None => {
@@ -193,12 +240,12 @@ fn axis_overlap(
                 for k in 0..n {
                     out.push(k * stride, w);
                 }
-                return out;
+                return;
             }
             if b - a <= 0.0 {
                 let k = (t.floor() as i64).rem_euclid(n as i64) as usize;
                 out.push(k * stride, 1.0);
-                return out;
+                return;
             }
         }
     }
@@ -224,10 +271,11 @@ fn axis_overlap(
         out.len -= 1;
     }
     let inv = 1.0 / sum;
-    for w in &mut out.weight[..out.len] {
+    let len = out.len;
+    for w in &mut out.weight[..len] {
         *w *= inv;
     }
-    out
+
 }
 
 /// Separable weights of one particle over cells or faces: the product of
@@ -374,6 +422,31 @@ impl Iterator for WeightsIter {
 }
 
 impl ExactSizeIterator for WeightsIter {}
+
+/// [`axis_weights`] written into `out`.
+#[inline(always)]
+pub fn axis_weights_into(
+    out: &mut AxisWeights,
+    grid: &GridGeometry,
+    axis: usize,
+    pos: DVec3,
+    side: f64,
+    faces: bool,
+) {
+    if axis == 2 && grid.planar {
+        out.len = 0;
+        if !faces {
+            out.push(0, 1.0);
+        }
+        return;
+    }
+    let h = grid.h[axis];
+    let t = (pos[axis] - grid.lo[axis]) / h;
+    let n = grid.n[axis];
+    let (shift, lo) = if faces { (0.5, 1.0) } else { (0.0, 0.0) };
+    let clip = (!grid.periodic[axis]).then_some((lo, n as f64));
+    axis_overlap_into(out, t + shift, 0.5 * side / h, n, clip, 1);
+}
 
 /// 1D weights of the cube of side `side` (m) centred at `pos` along `axis`
 /// with unstrided indices: over the cells (`faces == false`), or over the

@@ -759,7 +759,10 @@ impl GasPhase {
             for (f, link) in self.cells_of_face[a].iter().enumerate() {
                 let (eps, eps_rho, rho) = face_values(link, &self.gas_fraction, &self.density);
                 let flux = match self.role[a][f] {
-                    FaceRole::Fixed(u) => rho * u,
+                    // Inflow at the density of the old level: the mass flow
+                    // is a boundary condition independent of the new
+                    // pressure, which keeps the Jacobian exact.
+                    FaceRole::Fixed(u) => face_values(link, &self.gas_fraction, &self.density_old).2 * u,
                     _ => {
                         let coefficient = eps_rho + dt * self.drag_beta[a][f];
                         let gradient = face_gradient(link, &self.pressure, p_out, h);
