@@ -405,7 +405,7 @@ impl InletFeeder {
     }
 }
 
-const TIME_SERIES_HEADER: [&str; 14] = [
+const TIME_SERIES_HEADER: [&str; 17] = [
     "time_s",
     "particles",
     "pair_collisions",
@@ -420,6 +420,9 @@ const TIME_SERIES_HEADER: [&str; 14] = [
     "pressure_collisional_Pa",
     "dissipated_J",
     "collapse_reports",
+    "centre_of_mass_x_m",
+    "centre_of_mass_y_m",
+    "centre_of_mass_z_m",
 ];
 
 fn simulate<Q: EventQueue>(
@@ -710,6 +713,11 @@ fn sample_interval_row<Q: EventQueue>(
         .map(|p| p.mass * (p.vel - mean).length_squared())
         .sum();
     let n = engine.len().max(1) as f64;
+    let centre = if mass > 0.0 {
+        engine.particles().map(|p| p.mass * p.pos).sum::<DVec3>() / mass
+    } else {
+        DVec3::ZERO
+    };
     let temperature = engine
         .particles()
         .map(|p| (p.vel - mean).length_squared())
@@ -735,6 +743,9 @@ fn sample_interval_row<Q: EventQueue>(
         p_coll,
         (c.dissipated_pair + c.dissipated_wall) - (last.dissipated_pair + last.dissipated_wall),
         reports as f64,
+        centre.x,
+        centre.y,
+        centre.z,
     ]);
 }
 

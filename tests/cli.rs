@@ -12,7 +12,7 @@ const ROOT: &str = env!("CARGO_MANIFEST_DIR");
 const TIME_SERIES_HEADER: &str = "time_s,particles,pair_collisions,wall_collisions,\
 ke_translational_J,ke_rotational_J,momentum_x_kg_m_s,momentum_y_kg_m_s,momentum_z_kg_m_s,\
 granular_temperature_m2_s2,pressure_kinetic_Pa,pressure_collisional_Pa,dissipated_J,\
-collapse_reports";
+collapse_reports,centre_of_mass_x_m,centre_of_mass_y_m,centre_of_mass_z_m";
 
 const PARTICLES_HEADER: &str =
     "id,material,radius_m,x_m,y_m,z_m,vx_m_s,vy_m_s,vz_m_s,wx_rad_s,wy_rad_s,wz_rad_s";

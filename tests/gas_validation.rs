@@ -96,7 +96,10 @@ fn poiseuille_profile_within_one_percent() {
     let solid = poiseuille([3, 16, 3], false, PressureSolverKind::Pcg);
     assert!(solid < 0.01, "3D: max error {solid:.2e} of u_max");
     // Both grids see the same flow: the 3D solution must match the 2D one.
-    assert!((planar - solid).abs() < 1e-3, "2D {planar:e} vs 3D {solid:e}");
+    assert!(
+        (planar - solid).abs() < 1e-3,
+        "2D {planar:e} vs 3D {solid:e}"
+    );
 }
 
 fn particle(pos: DVec3, d: f64, rho_p: f64) -> ParticleView {
@@ -195,10 +198,15 @@ fn drag_momentum_balances_exactly() {
         [GasFace::Inflow { velocity: 1.0 }, GasFace::Outlet],
         [GasFace::FreeSlip; 2],
     ];
-    let mut cfg = config([6, 10, 1], faces, GasModel::IdealGas {
-        molar_mass: 0.029,
-        temperature: 293.0,
-    }, 1.8e-5);
+    let mut cfg = config(
+        [6, 10, 1],
+        faces,
+        GasModel::IdealGas {
+            molar_mass: 0.029,
+            temperature: 293.0,
+        },
+        1.8e-5,
+    );
     cfg.drag = DragLaw::Beetstra;
     let grid = GridGeometry::new(
         DVec3::ZERO,
@@ -210,7 +218,9 @@ fn drag_momentum_balances_exactly() {
     let mut gas = GasPhase::new(grid, cfg, DVec3::new(0.0, -9.81, 0.0));
     let mut state = 12345u64;
     let mut next = || {
-        state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        state = state
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
         (state >> 11) as f64 / (1u64 << 53) as f64
     };
     let particles: Vec<Option<ParticleView>> = (0..300)
@@ -287,14 +297,23 @@ y_hi = "outlet"
     let dir = std::env::temp_dir().join(format!("edpm-settling-{}", std::process::id()));
     run_scenario(&s, &dir, false).expect("run");
     let csv = std::fs::read_to_string(dir.join("final_particles.csv")).expect("particles");
-    let row: Vec<f64> = csv.lines().nth(1).expect("one particle").split(',').map(|x| x.parse().unwrap()).collect();
+    let row: Vec<f64> = csv
+        .lines()
+        .nth(1)
+        .expect("one particle")
+        .split(',')
+        .map(|x| x.parse().unwrap())
+        .collect();
     let v = -row[7];
     let g = s.gas.as_ref().unwrap();
     let rho_g = g.model.density(g.pressure);
     let vt = terminal_velocity(100e-6, 2500.0, rho_g, g.viscosity, 9.81);
     let err = (v - vt).abs() / vt;
     eprintln!("settling: {v:.6} m/s vs Schiller–Naumann {vt:.6} m/s");
-    assert!(err < 0.01, "settling {v:.5} m/s vs Schiller–Naumann {vt:.5} m/s ({err:.2e})");
+    assert!(
+        err < 0.01,
+        "settling {v:.5} m/s vs Schiller–Naumann {vt:.5} m/s ({err:.2e})"
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }
 
@@ -336,24 +355,37 @@ fn jet_bed_runs_one_second_without_nan_escape_or_overlap() {
     let steps = (1.0 / dt).round() as usize;
     let mut worst_gap = f64::INFINITY;
     for step in 0..steps {
-        gas.step(&mut engine, s.domain.gravity, dt).expect("gas step");
+        gas.step(&mut engine, s.domain.gravity, dt)
+            .expect("gas step");
         engine.advance(dt);
         engine.end_flow_step();
         if step % 20 == 19 || step + 1 == steps {
             let g = &gas.gas;
             assert!(
-                g.pressure.iter().chain(&g.velocity[0]).chain(&g.velocity[1]).all(|x| x.is_finite()),
+                g.pressure
+                    .iter()
+                    .chain(&g.velocity[0])
+                    .chain(&g.velocity[1])
+                    .all(|x| x.is_finite()),
                 "non-finite gas field at step {step}"
             );
             let particles: Vec<ParticleView> = engine.particles().collect();
             assert_eq!(particles.len(), n, "particles lost at step {step}");
             for p in &particles {
-                assert!(p.pos.is_finite() && p.vel.is_finite(), "NaN particle {}", p.id);
+                assert!(
+                    p.pos.is_finite() && p.vel.is_finite(),
+                    "NaN particle {}",
+                    p.id
+                );
                 let inside = (0..2).all(|a| {
                     p.pos[a] >= s.domain.lo[a] + p.radius * (1.0 - 1e-9)
                         && p.pos[a] <= s.domain.hi[a] - p.radius * (1.0 - 1e-9)
                 });
-                assert!(inside, "particle {} left the box at step {step}: {:?}", p.id, p.pos);
+                assert!(
+                    inside,
+                    "particle {} left the box at step {step}: {:?}",
+                    p.id, p.pos
+                );
             }
             worst_gap = worst_gap.min(smallest_gap(&particles));
             assert!(worst_gap > -1e-10, "overlap {worst_gap:e} at step {step}");

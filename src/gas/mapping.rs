@@ -275,7 +275,6 @@ fn axis_overlap_into(
     for w in &mut out.weight[..len] {
         *w *= inv;
     }
-
 }
 
 /// Separable weights of one particle over cells or faces: the product of
@@ -454,9 +453,19 @@ pub fn axis_weights_into(
 /// faces only on a walled axis, as in [`face_weights`]). The product of
 /// these factors over the axes gives [`cell_weights`] and [`face_weights`].
 #[inline(always)]
-pub fn axis_weights(grid: &GridGeometry, axis: usize, pos: DVec3, side: f64, faces: bool) -> AxisWeights {
+pub fn axis_weights(
+    grid: &GridGeometry,
+    axis: usize,
+    pos: DVec3,
+    side: f64,
+    faces: bool,
+) -> AxisWeights {
     if axis == 2 && grid.planar {
-        return if faces { AxisWeights::EMPTY } else { AxisWeights::single(0) };
+        return if faces {
+            AxisWeights::EMPTY
+        } else {
+            AxisWeights::single(0)
+        };
     }
     let h = grid.h[axis];
     let t = (pos[axis] - grid.lo[axis]) / h;

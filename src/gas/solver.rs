@@ -192,7 +192,11 @@ fn face_values(link: &FaceCells, eps: &[f64], rho: &[f64]) -> (f64, f64, f64) {
             )
         }
         _ => {
-            let c = if link.lower != NONE { link.lower } else { link.upper } as usize;
+            let c = if link.lower != NONE {
+                link.lower
+            } else {
+                link.upper
+            } as usize;
             (eps[c], eps[c] * rho[c], rho[c])
         }
     }
@@ -536,7 +540,6 @@ impl GasPhase {
         }
     }
 
-
     /// Ghost value of velocity component `a` across the boundary normal to
     /// `b` (b ≠ a) next to the interior value `inner`.
     #[inline]
@@ -575,7 +578,8 @@ impl GasPhase {
             let g = self.gravity[a];
             for (f, link) in self.cells_of_face[a].iter().enumerate() {
                 if self.role[a][f] == FaceRole::Outlet {
-                    let (_, m_old, _) = face_values(link, &self.gas_fraction_old, &self.density_old);
+                    let (_, m_old, _) =
+                        face_values(link, &self.gas_fraction_old, &self.density_old);
                     self.explicit[a][f] = m_old * (self.velocity[a][f] + dt * g);
                 }
             }
@@ -587,7 +591,8 @@ impl GasPhase {
                 };
                 let (_, m_old, _) = face_values(&link, &self.gas_fraction_old, &self.density_old);
                 let u = self.velocity[a][f];
-                let transport = self.convection(a, stencil, axes) - mu * self.diffusion(a, stencil, axes);
+                let transport =
+                    self.convection(a, stencil, axes) - mu * self.diffusion(a, stencil, axes);
                 self.explicit[a][f] = m_old * (u + dt * g) - dt * transport;
             }
         }
@@ -762,7 +767,9 @@ impl GasPhase {
                     // Inflow at the density of the old level: the mass flow
                     // is a boundary condition independent of the new
                     // pressure, which keeps the Jacobian exact.
-                    FaceRole::Fixed(u) => face_values(link, &self.gas_fraction, &self.density_old).2 * u,
+                    FaceRole::Fixed(u) => {
+                        face_values(link, &self.gas_fraction, &self.density_old).2 * u
+                    }
                     _ => {
                         let coefficient = eps_rho + dt * self.drag_beta[a][f];
                         let gradient = face_gradient(link, &self.pressure, p_out, h);
@@ -833,7 +840,11 @@ impl GasPhase {
                     m.off[a][l] -= k;
                 } else {
                     any_outlet = true;
-                    let x = if link.lower != NONE { link.lower } else { link.upper };
+                    let x = if link.lower != NONE {
+                        link.lower
+                    } else {
+                        link.upper
+                    };
                     m.diag[x as usize] += k;
                 }
             }
