@@ -125,7 +125,7 @@ fn run_writes_summary_time_series_particles_and_checkpoint() {
     assert_eq!(header, TIME_SERIES_HEADER);
     assert_eq!(rows.len(), 5, "rows at 0, 5, 10, 15, 20 ms");
     for (k, row) in rows.iter().enumerate() {
-        assert_eq!(row.len(), 14);
+        assert_eq!(row.len(), 17);
         assert!(
             (row[0] - 0.005 * k as f64).abs() < 1e-12,
             "row {k}: {row:?}"
