@@ -22,4 +22,5 @@ pub mod random;
 pub mod replay;
 pub mod run;
 pub mod scenario;
+pub mod snapshot;
 pub mod vtk;

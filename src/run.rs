@@ -18,7 +18,10 @@ use rand_xoshiro::Xoshiro256PlusPlus;
 
 use crate::collision::ContactParams;
 use crate::domain::{Domain, OutletMode};
-use crate::engine::{CollapseReport, Counters, Engine, EngineConfig, InletZone, NeighbourSearch};
+use crate::domain::AxisBoundary;
+use crate::engine::{
+    CollapseReport, Counters, Engine, EngineConfig, InletZone, NeighbourSearch, Record,
+};
 use crate::eventlog::{
     CheckpointHeader, LogHeader, LogRecord, LogWriter, RecordKind, checkpoint_particles,
 };
@@ -28,6 +31,9 @@ use crate::output::{CHECKPOINT_VERSION, Checkpoint, CsvTable, write_atomic};
 use crate::particles::NewParticle;
 use crate::queue::{CalendarQueue, EventQueue, IndexedHeap, QueueKind, ReferenceQueue};
 use crate::scenario::{NeighbourChoice, Scenario, Splitting};
+use crate::snapshot::{
+    CollisionTally, GasSnapshot, SNAPSHOT_VERSION, Snapshot, SnapshotParticle, TallyGrid,
+};
 use crate::vtk::{PvdSeries, VtkParticle};
 
 /// Entry point of `edpm run`.
@@ -451,6 +457,14 @@ fn simulate<Q: EventQueue>(
     if let Some(sn) = snapshots.as_mut() {
         sn.write(&engine, gas.as_ref())?;
     }
+    write_atomic(&out_dir.join("scenario.toml"), s.effective_toml.as_bytes())?;
+    let mut analysis = s.output.snapshot_interval.map(|interval| {
+        engine.set_recording(true);
+        AnalysisSnapshots::new(s, out_dir, interval, gas.as_ref())
+    });
+    if let Some(a) = analysis.as_mut() {
+        a.write(&engine, gas.as_ref())?;
+    }
     let steps_total = (s.time.t_end / s.time.dt_flow - 1e-9).ceil().max(1.0) as u64;
     let mut log = match &opts.log {
         Some(path) => {
@@ -509,9 +523,14 @@ fn simulate<Q: EventQueue>(
             engine.kick_all(dv);
         }
         engine.advance(dt);
+        if let Some(a) = analysis.as_mut() {
+            a.tally(&engine, dt);
+        }
         if let Some(log) = log.as_mut() {
             // Drain every step: the record buffer stays small and in cache.
             log.drain(&mut engine)?;
+        } else if analysis.is_some() {
+            engine.records.clear();
         }
         let t = engine.time();
         let last_step = step + 1 == steps;
@@ -558,6 +577,11 @@ fn simulate<Q: EventQueue>(
             && (t >= sn.next * (1.0 - 1e-9) || last_step)
         {
             sn.write(&engine, gas.as_ref())?;
+        }
+        if let Some(a) = analysis.as_mut()
+            && (t >= a.next * (1.0 - 1e-9) || last_step)
+        {
+            a.write(&engine, gas.as_ref())?;
         }
         if let Some(bar) = &bar {
             bar.set_position(step + 1);
@@ -623,6 +647,96 @@ fn simulate<Q: EventQueue>(
     let json = serde_json::to_string_pretty(&summary).context("encoding summary")?;
     write_atomic(&out_dir.join("summary.json"), json.as_bytes())?;
     Ok(summary)
+}
+
+/// Binary snapshots for `edpm analyse`, with the collision tally of each
+/// interval (see `src/snapshot.rs`).
+struct AnalysisSnapshots {
+    dir: PathBuf,
+    interval: f64,
+    next: f64,
+    count: usize,
+    tally: CollisionTally,
+    gravity: DVec3,
+}
+
+impl AnalysisSnapshots {
+    fn new(s: &Scenario, out_dir: &Path, interval: f64, gas: Option<&GasRun>) -> Self {
+        let grid = match gas {
+            Some(g) => TallyGrid {
+                lo: g.gas.grid.lo,
+                h: g.gas.grid.h,
+                n: g.gas.grid.n,
+            },
+            None => {
+                let n = s.output.tally_cells.unwrap_or([1, 1, 1]);
+                let e = s.domain.extent();
+                TallyGrid {
+                    lo: s.domain.lo,
+                    h: DVec3::new(e.x / n[0] as f64, e.y / n[1] as f64, e.z / n[2] as f64),
+                    n,
+                }
+            }
+        };
+        AnalysisSnapshots {
+            dir: out_dir.join("snapshots"),
+            interval,
+            next: 0.0,
+            count: 0,
+            tally: CollisionTally::new(grid),
+            gravity: s.domain.gravity,
+        }
+    }
+
+    /// Adds the collisions of the flow step just processed.
+    fn tally<Q: EventQueue>(&mut self, engine: &Engine<Q>, dt: f64) {
+        let domain = engine.domain();
+        for r in &engine.records {
+            if let Record::Collision(c) = r {
+                self.tally.add(c, |x| domain.wrap(x));
+            }
+        }
+        self.tally.interval += dt;
+    }
+
+    fn write<Q: EventQueue>(&mut self, engine: &Engine<Q>, gas: Option<&GasRun>) -> anyhow::Result<()> {
+        std::fs::create_dir_all(&self.dir)
+            .with_context(|| format!("creating {}", self.dir.display()))?;
+        let domain = engine.domain();
+        let gas = gas.map(|g| {
+            let grid = &g.gas.grid;
+            GasSnapshot {
+                grid: self.tally.grid.clone(),
+                gas_fraction: g.gas.gas_fraction.clone(),
+                pressure: g.gas.pressure.clone(),
+                velocity: (0..grid.cells())
+                    .map(|c| {
+                        g.gas.superficial_velocity(grid.cell_coords(c)) / g.gas.gas_fraction[c]
+                    })
+                    .collect(),
+            }
+        });
+        let t = engine.time();
+        let snapshot = Snapshot {
+            version: SNAPSHOT_VERSION,
+            time: t,
+            lo: domain.lo,
+            hi: domain.hi,
+            periodic: std::array::from_fn(|a| domain.axes[a] == AxisBoundary::Periodic),
+            planar: domain.axes[2] == AxisBoundary::Frozen,
+            gravity: self.gravity,
+            particles: engine.particles().map(SnapshotParticle::from).collect(),
+            gas,
+            collisions: Some(self.tally.clone()),
+        };
+        snapshot.write(&self.dir.join(format!("{:06}.bin", self.count)))?;
+        self.tally.reset();
+        self.count += 1;
+        while self.next <= t * (1.0 + 1e-9) {
+            self.next += self.interval;
+        }
+        Ok(())
+    }
 }
 
 /// VTK snapshots of particles (and gas) with ParaView `.pvd` series.

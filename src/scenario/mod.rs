@@ -341,6 +341,12 @@ pub struct OutputSettings {
     /// fields when [`Scenario::gas`] is `Some`) (s), `0 < vtk_interval <=
     /// t_end`; `None`: no snapshots.
     pub vtk_interval: Option<f64>,
+    /// Interval between particle snapshots for `edpm analyse` (s), clamped
+    /// to `t_end`; `None`: no snapshots.
+    pub snapshot_interval: Option<f64>,
+    /// Cells of the collision tally per axis when there is no gas grid
+    /// (default one cell per axis).
+    pub tally_cells: Option<[usize; 3]>,
 }
 
 /// A validated scenario with resolved indices and defaults.

@@ -163,6 +163,8 @@ pub(super) struct RawEngine {
 pub(super) struct RawOutput {
     pub sample_interval: Option<f64>,
     pub vtk_interval: Option<f64>,
+    pub snapshot_interval: Option<f64>,
+    pub tally_cells: Option<[RawInt; 3]>,
 }
 
 /// `[gas]`; resolved in `gas.rs`.

@@ -774,9 +774,14 @@ pub(crate) fn validate(ctx: &Ctx, raw: RawScenario) -> R<Scenario> {
     };
 
     // ---- output
-    let (sample_interval, vtk_interval) = match raw.output {
-        Some(o) => (o.sample_interval, o.vtk_interval),
-        None => (None, None),
+    let (sample_interval, vtk_interval, snapshot_interval, tally_cells) = match &raw.output {
+        Some(o) => (
+            o.sample_interval,
+            o.vtk_interval,
+            o.snapshot_interval,
+            o.tally_cells.clone(),
+        ),
+        None => (None, None, None, None),
     };
     let sample_interval = sample_interval.unwrap_or(t_end / 100.0);
     if !(sample_interval.is_finite() && sample_interval > 0.0) {
@@ -797,6 +802,38 @@ pub(crate) fn validate(ctx: &Ctx, raw: RawScenario) -> R<Scenario> {
         }
         // Clamped like sample_interval: snapshots at the start and the end.
         Some(v) => Some(v.min(t_end)),
+        None => None,
+    };
+
+    let snapshot_interval = match snapshot_interval {
+        Some(v) if !(v.is_finite() && v > 0.0) => {
+            return Err(ctx.err(
+                "output.snapshot_interval",
+                format!("must be > 0 s and finite, got {v:?}"),
+            ));
+        }
+        Some(v) => Some(v.min(t_end)),
+        None => None,
+    };
+    let tally_cells = match tally_cells {
+        Some(cells) => {
+            let mut n = [1usize; 3];
+            for (a, v) in cells.iter().enumerate() {
+                let path = format!("output.tally_cells[{a}]");
+                let k = ctx.uint(&path, v)?;
+                if !(1..=4096).contains(&k) {
+                    return Err(ctx.err(&path, format!("must be in [1, 4096], got {k}")));
+                }
+                n[a] = k as usize;
+            }
+            if domain.planar && n[2] != 1 {
+                return Err(ctx.err(
+                    "output.tally_cells[2]",
+                    format!("must be 1 in planar mode, got {}", n[2]),
+                ));
+            }
+            Some(n)
+        }
         None => None,
     };
 
@@ -827,6 +864,8 @@ pub(crate) fn validate(ctx: &Ctx, raw: RawScenario) -> R<Scenario> {
         output: OutputSettings {
             sample_interval,
             vtk_interval,
+            snapshot_interval,
+            tally_cells,
         },
         gas,
     })
