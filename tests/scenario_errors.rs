@@ -1619,3 +1619,16 @@ proptest! {
         no_panic(BASE, &[over]);
     }
 }
+
+#[test]
+fn snapshot_and_tally_keys_are_checked() {
+    let s = with(&["output.snapshot_interval=0.01", "output.tally_cells=[2, 3, 4]"]).unwrap();
+    assert_eq!(s.output.snapshot_interval, Some(0.01));
+    assert_eq!(s.output.tally_cells, Some([2, 3, 4]));
+    let e = with(&["output.snapshot_interval=0.0"]).unwrap_err();
+    assert_eq!(e.path(), Some("output.snapshot_interval"));
+    assert!(e.to_string().contains("must be > 0 s"), "{e}");
+    let e = with(&["output.tally_cells=[2, 0, 4]"]).unwrap_err();
+    assert_eq!(e.path(), Some("output.tally_cells[1]"));
+    assert!(e.to_string().contains("[1, 4096]"), "{e}");
+}
