@@ -5,6 +5,7 @@
 //! ordering by [`queue`], neighbour shells from [`neighbours`]) → output.
 //! Units are SI throughout.
 
+pub mod analysis;
 pub mod bench;
 pub mod collision;
 pub mod domain;
@@ -17,6 +18,7 @@ pub mod materials;
 pub mod neighbours;
 pub mod output;
 pub mod particles;
+pub mod plot;
 pub mod queue;
 pub mod random;
 pub mod replay;

@@ -63,6 +63,51 @@ enum Command {
         #[arg(long)]
         out: Option<PathBuf>,
     },
+    /// Statistics of a run's snapshots (velocity distributions, granular
+    /// temperatures, profiles, heterogeneity, energy budget, KTGF test,
+    /// segregation), written as CSV and JSON into RUN_DIR/analysis/.
+    Analyse {
+        /// Run directory written by `edpm run` with [output] snapshot_interval.
+        run_dir: PathBuf,
+        /// Use only snapshots at t >= this time (s).
+        #[arg(
+            long,
+            value_name = "SECONDS",
+            default_value_t = 0.0,
+            allow_negative_numbers = true
+        )]
+        t_start: f64,
+        /// Analysis cell size (m); repeat or give a list (0.01,0.02) to show
+        /// the cell-size dependence; the first is the primary grid
+        /// (default: the run's tally or gas grid, else 5 diameters).
+        #[arg(
+            long = "cell-size",
+            value_name = "METRES",
+            value_delimiter = ',',
+            allow_negative_numbers = true
+        )]
+        cell_size: Vec<f64>,
+        /// Cells with fewer particles are skipped in the velocity statistics
+        /// and the KTGF test.
+        #[arg(long, value_name = "N", default_value_t = 10)]
+        min_per_cell: usize,
+        /// Tally cells with fewer pair collisions in an interval are skipped
+        /// in the KTGF test.
+        #[arg(long, value_name = "N", default_value_t = 10)]
+        min_collisions: u64,
+        /// Histogram bins.
+        #[arg(long, value_name = "N", default_value_t = 50)]
+        bins: usize,
+        /// Heights (m above the box bottom) of the lateral profiles
+        /// (default: 5 evenly spaced).
+        #[arg(
+            long,
+            value_name = "METRES",
+            value_delimiter = ',',
+            allow_negative_numbers = true
+        )]
+        heights: Vec<f64>,
+    },
     /// Elastic smooth spheres in a periodic cube; prints one JSON line.
     Bench {
         /// Particle count (rounded to 4 k³ for the FCC start).
@@ -153,6 +198,25 @@ fn main() -> ExitCode {
                 verify,
                 stats,
                 out,
+            },
+        ),
+        Command::Analyse {
+            run_dir,
+            t_start,
+            cell_size,
+            min_per_cell,
+            min_collisions,
+            bins,
+            heights,
+        } => edpm::analysis::analyse_cli(
+            &run_dir,
+            &edpm::analysis::AnalyseOptions {
+                t_start,
+                cell_sizes: cell_size,
+                min_per_cell,
+                bins,
+                heights,
+                min_collisions,
             },
         ),
         Command::Bench {

@@ -110,10 +110,22 @@ impl CollisionTally {
         let a = r.after[0];
         match r.b {
             Partner::Particle(_) => {
-                let pos_b = r.after[1].pos;
-                // Contact distance from the positions (periodic images
-                // differ by whole box lengths, so use the normal instead).
-                let sigma = (a.pos - pos_b).dot(r.normal).abs();
+                // Contact distance from the positions, as the minimum image:
+                // stored positions of a pair touching across a periodic
+                // boundary are a box length apart.
+                let box_size = self.grid.h
+                    * DVec3::new(
+                        self.grid.n[0] as f64,
+                        self.grid.n[1] as f64,
+                        self.grid.n[2] as f64,
+                    );
+                let mut d = a.pos - r.after[1].pos;
+                for ax in 0..3 {
+                    if box_size[ax] > 0.0 {
+                        d[ax] -= (d[ax] / box_size[ax]).round() * box_size[ax];
+                    }
+                }
+                let sigma = d.dot(r.normal).abs();
                 let c = self.grid.cell_of(wrap(a.pos - 0.5 * sigma * r.normal));
                 self.pair_collisions[c] += 1;
                 self.virial[c] += sigma * r.impulse.dot(r.normal);

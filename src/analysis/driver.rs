@@ -1,0 +1,1411 @@
+//! `edpm analyse RUN_DIR`: reads the snapshots of a run, applies the
+//! analyses of this module and writes CSV files and `analysis.json` into
+//! `RUN_DIR/analysis/`.
+//!
+//! Two passes over the snapshot files keep memory bounded by one or two
+//! snapshots: the first accumulates every statistic, the second the
+//! histograms (which are scaled by the standard deviations of the first)
+//! and the cluster fraction (whose threshold depends on the mean solids
+//! fraction of the first).
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, bail};
+use glam::DVec3;
+use serde::Serialize;
+
+use super::energy::{EnergyBudget, energy_budget};
+use super::grid::{
+    cell_centre, cell_coords, cell_sums, cell_volume, grid_for_cell_size, single_cell_grid,
+    solids_fraction,
+};
+use super::ktgf::{KtgfSample, KtgfSettings, ktgf_samples, sauter_diameter};
+use super::profiles::{
+    AXIS_NAMES, FieldAverages, Orientation, has_side_walls, is_wall_cell, layer_means, orientation,
+    pressure_bottom_top, vertical_flux, width_profile,
+};
+use super::segregation::{Bidisperse, classify, segregation};
+use super::velocity::{Histograms, MomentAccumulator, VelocityStats, local_fluctuations};
+use crate::output::{CsvTable, write_atomic};
+use crate::snapshot::{Snapshot, TallyGrid};
+
+/// Options of `edpm analyse`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct AnalyseOptions {
+    /// Only snapshots at `t ≥ t_start` are used (s).
+    pub t_start: f64,
+    /// Analysis cell sizes (m); the first is the primary grid of profiles,
+    /// fields and distributions, the others show the cell-size dependence.
+    /// Empty: the run's tally grid (the gas grid in gas runs) when it has
+    /// more than one cell, otherwise cells of about 5 Sauter diameters.
+    pub cell_sizes: Vec<f64>,
+    /// Cells with fewer particles are skipped in the velocity statistics
+    /// and the KTGF test (at least 2).
+    pub min_per_cell: usize,
+    /// Histogram bins.
+    pub bins: usize,
+    /// Heights (m above the box bottom) of the lateral profiles; empty:
+    /// 5 evenly spaced (centres of 5 equal bands).
+    pub heights: Vec<f64>,
+    /// Tally cells with fewer pair collisions in an interval are skipped in
+    /// the KTGF test.
+    pub min_collisions: u64,
+}
+
+impl Default for AnalyseOptions {
+    fn default() -> Self {
+        AnalyseOptions {
+            t_start: 0.0,
+            cell_sizes: Vec::new(),
+            min_per_cell: 10,
+            bins: 50,
+            heights: Vec::new(),
+            min_collisions: 10,
+        }
+    }
+}
+
+/// Default cell size in Sauter diameters when the run has no tally grid.
+pub const DEFAULT_CELL_DIAMETERS: f64 = 5.0;
+
+/// Largest number of analysis cells per grid.
+pub const MAX_CELLS: usize = 10_000_000;
+
+/// Width of the solids-fraction bins of `ktgf_binned.csv`.
+pub const KTGF_BIN_WIDTH: f64 = 0.02;
+
+/// Default cluster threshold: cells with a solids fraction above
+/// `max(CLUSTER_FACTOR × mean, CLUSTER_MIN)` count as dense clusters.
+pub const CLUSTER_FACTOR: f64 = 2.0;
+pub const CLUSTER_MIN: f64 = 0.1;
+
+/// A figure the plotting code (src/plot.rs) is meant to draw from a CSV
+/// written here.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct FigureSpec {
+    /// PNG file name in `RUN_DIR/analysis/`.
+    pub name: &'static str,
+    /// CSV file in `RUN_DIR/analysis/`.
+    pub data: &'static str,
+    pub x: &'static str,
+    /// Columns to draw against `x` (missing columns, e.g. z in planar
+    /// mode, are left out).
+    pub y: &'static [&'static str],
+    pub what: &'static str,
+}
+
+/// The figures planned for the analysis (drawn by src/plot.rs).
+pub const FIGURES: &[FigureSpec] = &[
+    FigureSpec {
+        name: "velocity_distribution.png",
+        data: "velocity_distribution.csv",
+        x: "c_over_sigma",
+        y: &["f_x", "f_y", "f_z", "gaussian"],
+        what: "f(C_i/σ_i) per component against the unit Gaussian",
+    },
+    FigureSpec {
+        name: "speed_distribution.png",
+        data: "speed_distribution.csv",
+        x: "c_over_sqrt_T",
+        y: &["f", "maxwellian"],
+        what: "f(|C|/√T) against the Maxwellian speed distribution",
+    },
+    FigureSpec {
+        name: "temperature_timeseries.png",
+        data: "temperature_timeseries.csv",
+        x: "time_s",
+        y: &["T_m2_s2", "T_rot_m2_s2", "T_global_m2_s2"],
+        what: "granular temperatures against time",
+    },
+    FigureSpec {
+        name: "cell_size_dependence.png",
+        data: "cell_size_dependence.csv",
+        x: "cell_size_m",
+        y: &["T_m2_s2", "sonine_a2"],
+        what: "T and a2 against the analysis cell size",
+    },
+    FigureSpec {
+        name: "profiles_width.png",
+        data: "profiles_width.csv",
+        x: "width_m",
+        y: &["solids_fraction", "solids_flux_kg_m2_s"],
+        what: "lateral profiles, one line per height_m",
+    },
+    FigureSpec {
+        name: "profile_height.png",
+        data: "profile_height.csv",
+        x: "height_m",
+        y: &["solids_fraction"],
+        what: "solids hold-up along the height",
+    },
+    FigureSpec {
+        name: "pressure_drop.png",
+        data: "pressure_drop.csv",
+        x: "time_s",
+        y: &["pressure_drop_Pa", "bed_weight_per_area_Pa"],
+        what: "gas pressure drop against the bed weight (gas runs)",
+    },
+    FigureSpec {
+        name: "energy_budget.png",
+        data: "energy_budget.csv",
+        x: "time_s",
+        y: &["potential_J", "convective_J", "granular_J", "rotational_J"],
+        what: "energy budget against time",
+    },
+    FigureSpec {
+        name: "ktgf_pressure.png",
+        data: "ktgf_binned.csv",
+        x: "solids_fraction",
+        y: &["pc_measured_Pa", "pc_ktgf_Pa", "pc_ktgf_cs_Pa"],
+        what: "measured collisional pressure against KTGF (scaled plots: ratio columns)",
+    },
+    FigureSpec {
+        name: "ktgf_dissipation.png",
+        data: "ktgf_binned.csv",
+        x: "solids_fraction",
+        y: &[
+            "gamma_measured_W_m3",
+            "gamma_ktgf_W_m3",
+            "gamma_ktgf_cs_W_m3",
+        ],
+        what: "measured dissipation rate against KTGF",
+    },
+    FigureSpec {
+        name: "segregation.png",
+        data: "segregation.csv",
+        x: "time_s",
+        y: &["segregation_index"],
+        what: "degree of segregation (bidisperse beds)",
+    },
+];
+
+/// An analysis grid.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct GridInfo {
+    /// Requested cell size (m); for the tally grid or the one-cell grid the
+    /// largest cell edge.
+    pub cell_size: f64,
+    pub source: &'static str,
+    pub n: [usize; 3],
+    /// Cell edges (m); in planar mode `h[2]` is the bed depth.
+    pub h: [f64; 3],
+    pub cell_volume: f64,
+}
+
+impl GridInfo {
+    fn new(grid: &TallyGrid, cell_size: f64, source: &'static str) -> Self {
+        GridInfo {
+            cell_size,
+            source,
+            n: grid.n,
+            h: grid.h.to_array(),
+            cell_volume: cell_volume(grid),
+        }
+    }
+}
+
+/// Velocity statistics on one grid.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct CellSizeResult {
+    pub grid: GridInfo,
+    /// Cell-snapshot pairs that met / missed `min_per_cell`.
+    pub cell_samples_used: u64,
+    pub cell_samples_skipped: u64,
+    pub particles_skipped: u64,
+    pub stats: VelocityStats,
+    /// Standard deviation over mean of the cell solids fraction.
+    pub solids_fraction_std_over_mean: f64,
+}
+
+/// Spatial heterogeneity of the solids fraction (primary grid).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Heterogeneity {
+    /// Cell-snapshot samples (all cells, empty ones included).
+    pub cell_samples: u64,
+    pub mean_solids_fraction: f64,
+    pub std_solids_fraction: f64,
+    pub std_over_mean: f64,
+    /// `max(2 × mean, 0.1)`.
+    pub cluster_threshold: f64,
+    /// Particles in cells above the threshold over all particles.
+    pub cluster_particle_fraction: f64,
+    /// Mean solids fraction of the cells next to a side wall and of the
+    /// others (`None` without side walls or without core cells).
+    pub wall_layer_solids_fraction: Option<f64>,
+    pub core_solids_fraction: Option<f64>,
+    pub wall_to_core_ratio: Option<f64>,
+}
+
+/// Time-averaged gas pressure drop.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct PressureDropSummary {
+    /// Bottom minus top layer of gas cells (Pa).
+    pub mean_pressure_drop: f64,
+    /// Weight of the particles per cross-section area `Σ m |g| / A` (Pa).
+    pub mean_bed_weight_per_area: f64,
+    pub ratio: f64,
+}
+
+/// Time-averaged energy budget.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct EnergySummary {
+    pub mean: EnergyBudget,
+    /// Percentages of the mean total (as seed 002 Table 3).
+    pub percent_of_total: EnergyBudget,
+}
+
+/// Measured against KTGF over all samples: ratios of sums.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct KtgfSummary {
+    pub material: u16,
+    pub e_n: f64,
+    /// Particle diameter of the dissipation rate (Sauter mean, m).
+    pub diameter: f64,
+    pub tally_grid: GridInfo,
+    pub samples: usize,
+    pub collisions: u64,
+    pub mean_solids_fraction: f64,
+    /// Σ p_c measured / Σ p_c KTGF (Table 5 g0 and Carnahan–Starling g0).
+    pub pc_ratio_table5: f64,
+    pub pc_ratio_cs: f64,
+    /// Σ kinetic pressure measured / Σ ε_s ρ_s T (1 by construction, up to
+    /// the averaging of the two snapshots).
+    pub pk_ratio: f64,
+    pub gamma_ratio_table5: f64,
+    pub gamma_ratio_cs: f64,
+}
+
+/// Degree of segregation (seed 001 Eq. 49).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct SegregationSummary {
+    pub species: Bidisperse,
+    pub snapshots: usize,
+    pub first: f64,
+    pub last: f64,
+    pub mean: f64,
+}
+
+/// Contents of `analysis.json`.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct AnalysisSummary {
+    pub run_dir: String,
+    pub output_dir: String,
+    pub snapshots_total: usize,
+    pub snapshots_used: usize,
+    pub t_start: f64,
+    pub t_first: f64,
+    pub t_last: f64,
+    pub planar: bool,
+    /// Moving and rotational dimensions.
+    pub dimensions: usize,
+    pub rotational_dimensions: usize,
+    pub vertical_axis: &'static str,
+    /// "+" when up is the positive vertical axis.
+    pub up: &'static str,
+    pub width_axis: &'static str,
+    pub min_per_cell: usize,
+    pub primary_grid: GridInfo,
+    /// Velocity statistics on the primary grid (local mean subtracted).
+    pub velocity: VelocityStats,
+    /// Temperature with the global mean subtracted (one cell) (m²/s²).
+    pub temperature_global: f64,
+    /// Fractions of samples outside the histogram ranges (x, y, z, speed).
+    pub histogram_outside_fraction: [f64; 4],
+    /// Every grid, the primary first and the one-cell (global mean) last.
+    pub cell_size_dependence: Vec<CellSizeResult>,
+    pub heights: Vec<f64>,
+    pub heterogeneity: Heterogeneity,
+    pub pressure_drop: Option<PressureDropSummary>,
+    pub energy: EnergySummary,
+    pub ktgf: Option<KtgfSummary>,
+    pub segregation: Option<SegregationSummary>,
+    pub notes: Vec<String>,
+    /// Files written into `output_dir`.
+    pub files: Vec<String>,
+    pub figures_planned: Vec<FigureSpec>,
+}
+
+/// `edpm analyse`: analyses `run_dir` and prints a short report.
+pub fn analyse_cli(run_dir: &Path, opts: &AnalyseOptions) -> anyhow::Result<()> {
+    let s = analyse_run(run_dir, opts)?;
+    let v = &s.velocity;
+    eprintln!(
+        "edpm: analysed {} of {} snapshots (t = {:.4} to {:.4} s): T = {:.4e} m²/s², \
+         T_rot = {:.4e} m²/s², a2 = {:.4} ± {:.4}, solids fraction std/mean = {:.3}; results in {}",
+        s.snapshots_used,
+        s.snapshots_total,
+        s.t_first,
+        s.t_last,
+        v.temperature,
+        v.temperature_rotational,
+        v.sonine_a2,
+        v.sonine_a2_se,
+        s.heterogeneity.std_over_mean,
+        s.output_dir
+    );
+    for note in &s.notes {
+        eprintln!("edpm: note: {note}");
+    }
+    Ok(())
+}
+
+fn check_options(o: &AnalyseOptions) -> anyhow::Result<()> {
+    if !o.t_start.is_finite() {
+        bail!(
+            "--t-start: must be a finite time in seconds, got {}",
+            o.t_start
+        );
+    }
+    if let Some(x) = o.cell_sizes.iter().find(|x| !(x.is_finite() && **x > 0.0)) {
+        bail!("--cell-size: must be a length > 0 in metres, got {x}");
+    }
+    if o.min_per_cell < 2 {
+        bail!(
+            "--min-per-cell: must be at least 2 (one particle has no fluctuation about its own mean), got {}",
+            o.min_per_cell
+        );
+    }
+    if !(1..=100_000).contains(&o.bins) {
+        bail!("--bins: must be in 1..=100000, got {}", o.bins);
+    }
+    if let Some(h) = o.heights.iter().find(|h| !h.is_finite()) {
+        bail!("--heights: must be finite heights in metres, got {h}");
+    }
+    Ok(())
+}
+
+const SNAPSHOT_HINT: &str = "run with `[output] snapshot_interval = T` in the scenario \
+     (or `edpm run SCENARIO --set output.snapshot_interval=T`)";
+
+/// The snapshot files of a run, in order.
+pub fn snapshot_paths(run_dir: &Path) -> anyhow::Result<Vec<PathBuf>> {
+    if !run_dir.is_dir() {
+        bail!("{}: no such run directory", run_dir.display());
+    }
+    let dir = run_dir.join("snapshots");
+    if !dir.is_dir() {
+        bail!("{}: no snapshots: {SNAPSHOT_HINT}", dir.display());
+    }
+    let mut paths: Vec<PathBuf> = std::fs::read_dir(&dir)
+        .with_context(|| format!("reading {}", dir.display()))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|e| e == "bin"))
+        .collect();
+    if paths.is_empty() {
+        bail!(
+            "{}: no snapshot files (*.bin): {SNAPSHOT_HINT}",
+            dir.display()
+        );
+    }
+    paths.sort();
+    Ok(paths)
+}
+
+/// One analysis grid with its running statistics.
+struct GridPass {
+    info: GridInfo,
+    grid: TallyGrid,
+    moments: MomentAccumulator,
+    cells_used: u64,
+    cells_skipped: u64,
+    particles_skipped: u64,
+    /// Σ ε, Σ ε² and samples over cells and snapshots.
+    eps: [f64; 3],
+}
+
+impl GridPass {
+    fn new(grid: TallyGrid, cell_size: f64, source: &'static str) -> Self {
+        GridPass {
+            info: GridInfo::new(&grid, cell_size, source),
+            grid,
+            moments: MomentAccumulator::default(),
+            cells_used: 0,
+            cells_skipped: 0,
+            particles_skipped: 0,
+            eps: [0.0; 3],
+        }
+    }
+
+    fn result(&self, d: usize, d_rot: usize) -> CellSizeResult {
+        let [s, s2, n] = self.eps;
+        let mean = s / n;
+        let std = (s2 / n - mean * mean).max(0.0).sqrt();
+        CellSizeResult {
+            grid: self.info.clone(),
+            cell_samples_used: self.cells_used,
+            cell_samples_skipped: self.cells_skipped,
+            particles_skipped: self.particles_skipped,
+            stats: self.moments.stats(d, d_rot),
+            solids_fraction_std_over_mean: std / mean,
+        }
+    }
+}
+
+/// Per cell of the primary grid, pooled over snapshots.
+#[derive(Clone, Copy, Debug, Default)]
+struct CellPool {
+    snapshots_used: usize,
+    particles: usize,
+    mass_used: f64,
+    mass_c2: [f64; 3],
+    inertia_w2: f64,
+    mass: f64,
+    momentum: DVec3,
+}
+
+/// KTGF settings resolved from the scenario, or why the test is skipped.
+struct KtgfState {
+    settings: KtgfSettings,
+    material: u16,
+    samples: CsvTable,
+    count: usize,
+    collisions: u64,
+    eps_sum: f64,
+    /// Per solids-fraction bin: samples, collisions, then sums of ε, T,
+    /// pc measured, pc Table 5, pc CS, γ measured, γ Table 5, γ CS, pk
+    /// measured, pk KTGF.
+    bins: Vec<(u64, u64, [f64; 10])>,
+}
+
+const KTGF_SAMPLE_HEADER: [&str; 18] = [
+    "time_s",
+    "cell",
+    "solids_fraction",
+    "T_m2_s2",
+    "density_kg_m3",
+    "particles",
+    "collisions",
+    "g0_table5",
+    "g0_cs",
+    "pc_measured_Pa",
+    "pc_ktgf_Pa",
+    "pc_ktgf_cs_Pa",
+    "pk_measured_Pa",
+    "pk_ktgf_Pa",
+    "gamma_measured_W_m3",
+    "gamma_ktgf_W_m3",
+    "gamma_ktgf_cs_W_m3",
+    "interval_s",
+];
+
+const KTGF_BIN_HEADER: [&str; 18] = [
+    "eps_lo",
+    "eps_hi",
+    "samples",
+    "collisions",
+    "solids_fraction",
+    "T_m2_s2",
+    "pc_measured_Pa",
+    "pc_ktgf_Pa",
+    "pc_ktgf_cs_Pa",
+    "pc_ratio",
+    "pc_ratio_cs",
+    "gamma_measured_W_m3",
+    "gamma_ktgf_W_m3",
+    "gamma_ktgf_cs_W_m3",
+    "gamma_ratio",
+    "gamma_ratio_cs",
+    "pk_measured_Pa",
+    "pk_ktgf_Pa",
+];
+
+impl KtgfState {
+    fn add(&mut self, samples: &[KtgfSample], interval: f64) {
+        for s in samples {
+            self.samples.row(&[
+                s.time,
+                s.cell as f64,
+                s.solids_fraction,
+                s.temperature,
+                s.density,
+                s.particles,
+                s.collisions as f64,
+                s.g0_table5,
+                s.g0_cs,
+                s.pc_measured,
+                s.pc_ktgf,
+                s.pc_ktgf_cs,
+                s.pk_measured,
+                s.pk_ktgf,
+                s.gamma_measured,
+                s.gamma_ktgf,
+                s.gamma_ktgf_cs,
+                interval,
+            ]);
+            self.count += 1;
+            self.collisions += s.collisions;
+            self.eps_sum += s.solids_fraction;
+            let k = ((s.solids_fraction / KTGF_BIN_WIDTH).floor().max(0.0) as usize)
+                .min(self.bins.len() - 1);
+            let b = &mut self.bins[k];
+            b.0 += 1;
+            b.1 += s.collisions;
+            let v = [
+                s.solids_fraction,
+                s.temperature,
+                s.pc_measured,
+                s.pc_ktgf,
+                s.pc_ktgf_cs,
+                s.gamma_measured,
+                s.gamma_ktgf,
+                s.gamma_ktgf_cs,
+                s.pk_measured,
+                s.pk_ktgf,
+            ];
+            for (a, x) in b.2.iter_mut().zip(v) {
+                *a += x;
+            }
+        }
+    }
+
+    fn binned(&self) -> (CsvTable, [f64; 10]) {
+        let mut t = CsvTable::new(&KTGF_BIN_HEADER);
+        let mut total = [0.0; 10];
+        for (k, (n, coll, s)) in self.bins.iter().enumerate() {
+            if *n == 0 {
+                continue;
+            }
+            for (a, x) in total.iter_mut().zip(s) {
+                *a += x;
+            }
+            let m = |i: usize| s[i] / *n as f64;
+            t.row(&[
+                k as f64 * KTGF_BIN_WIDTH,
+                (k + 1) as f64 * KTGF_BIN_WIDTH,
+                *n as f64,
+                *coll as f64,
+                m(0),
+                m(1),
+                m(2),
+                m(3),
+                m(4),
+                s[2] / s[3],
+                s[2] / s[4],
+                m(5),
+                m(6),
+                m(7),
+                s[5] / s[6],
+                s[5] / s[7],
+                m(8),
+                m(9),
+            ]);
+        }
+        (t, total)
+    }
+}
+
+/// Everything accumulated in the first pass.
+struct Pass1<'a> {
+    opts: &'a AnalyseOptions,
+    lo: DVec3,
+    hi: DVec3,
+    planar: bool,
+    periodic: [bool; 3],
+    gravity: DVec3,
+    d: usize,
+    d_rot: usize,
+    orient: Orientation,
+    grids: Vec<GridPass>,
+    heights: Vec<f64>,
+    snapshots: usize,
+    t_first: f64,
+    t_last: f64,
+    series: CsvTable,
+    cells: Vec<CellPool>,
+    fields: FieldAverages,
+    /// Σ ε and samples over wall-layer and core cells.
+    wall: [f64; 2],
+    core: [f64; 2],
+    energy: CsvTable,
+    energy_sum: EnergyBudget,
+    pressure: Option<CsvTable>,
+    pressure_sum: [f64; 3],
+    /// `None` until the first snapshot with particles decides.
+    species: Option<Result<Bidisperse, String>>,
+    segregation: CsvTable,
+    segregation_values: Vec<f64>,
+    /// `None` until the first snapshot with particles decides.
+    ktgf: Option<Result<KtgfState, String>>,
+    scenario: Result<crate::scenario::Scenario, String>,
+    global_t: [f64; 2],
+    /// The collision tally grid (the KTGF cells).
+    tally: Option<TallyGrid>,
+    notes: Vec<String>,
+}
+
+fn header(cols: &[&str]) -> CsvTable {
+    CsvTable::new(cols)
+}
+
+impl<'a> Pass1<'a> {
+    fn new(run_dir: &Path, first: &Snapshot, opts: &'a AnalyseOptions) -> anyhow::Result<Self> {
+        let (lo, hi, planar) = (first.lo, first.hi, first.planar);
+        let d = if planar { 2 } else { 3 };
+        let d_rot = if planar { 1 } else { 3 };
+        let mut notes = Vec::new();
+        let tally = first.collisions.as_ref().map(|c| c.grid.clone());
+        let mut grids = Vec::new();
+        if opts.cell_sizes.is_empty() {
+            match tally.as_ref().filter(|g| g.cells() > 1) {
+                Some(g) => {
+                    let size = (0..d).map(|a| g.h[a]).fold(0.0, f64::max);
+                    grids.push(GridPass::new(g.clone(), size, "tally grid of the run"));
+                }
+                None => {
+                    let dp = sauter_diameter(&first.particles);
+                    if !dp.is_finite() {
+                        bail!(
+                            "--cell-size: no particles in the first snapshot analysed (t = {} s) to size the default cells; give --cell-size",
+                            first.time
+                        );
+                    }
+                    let size = DEFAULT_CELL_DIAMETERS * dp;
+                    grids.push(GridPass::new(
+                        grid_for_cell_size(lo, hi, planar, size),
+                        size,
+                        "default: 5 Sauter diameters",
+                    ));
+                }
+            }
+        } else {
+            for &size in &opts.cell_sizes {
+                grids.push(GridPass::new(
+                    grid_for_cell_size(lo, hi, planar, size),
+                    size,
+                    "--cell-size",
+                ));
+            }
+        }
+        for g in &grids {
+            if g.grid.cells() > MAX_CELLS {
+                bail!(
+                    "--cell-size: {} m gives {} cells ({:?} per axis), more than {MAX_CELLS}",
+                    g.info.cell_size,
+                    g.grid.cells(),
+                    g.grid.n
+                );
+            }
+        }
+        let e = hi - lo;
+        grids.push(GridPass::new(
+            single_cell_grid(lo, hi),
+            e.x.max(e.y).max(if planar { 0.0 } else { e.z }),
+            "one cell: global mean",
+        ));
+        let primary = grids[0].grid.clone();
+        let orient = orientation(first.gravity, primary.n, planar);
+        let box_height = orient.box_height(lo, hi);
+        let heights = if opts.heights.is_empty() {
+            (0..5)
+                .map(|k| (k as f64 + 0.5) / 5.0 * box_height)
+                .collect()
+        } else {
+            if let Some(h) = opts.heights.iter().find(|h| **h < 0.0 || **h > box_height) {
+                bail!(
+                    "--heights: {h} m is outside the box, whose height along {} is 0 to {box_height} m",
+                    AXIS_NAMES[orient.vertical]
+                );
+            }
+            opts.heights.clone()
+        };
+        let axes: Vec<&str> = AXIS_NAMES[..d].to_vec();
+        let mut cols: Vec<String> = [
+            "time_s",
+            "particles",
+            "particles_used",
+            "cells_used",
+            "cells_skipped",
+        ]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+        cols.extend(axes.iter().map(|a| format!("T_{a}_m2_s2")));
+        cols.extend(
+            [
+                "T_m2_s2",
+                "T_rot_m2_s2",
+                "T_global_m2_s2",
+                "sonine_a2",
+                "mean_solids_fraction",
+            ]
+            .iter()
+            .map(|s| s.to_string()),
+        );
+        let series = header(&cols.iter().map(String::as_str).collect::<Vec<_>>());
+        let pressure = first.gas.as_ref().map(|_| {
+            header(&[
+                "time_s",
+                "pressure_bottom_Pa",
+                "pressure_top_Pa",
+                "pressure_drop_Pa",
+                "bed_weight_per_area_Pa",
+            ])
+        });
+        let scenario_path = run_dir.join("scenario.toml");
+        let scenario = std::fs::read_to_string(&scenario_path)
+            .map_err(|e| format!("{}: {e}", scenario_path.display()))
+            .and_then(|text| {
+                crate::scenario::Scenario::from_str_named(
+                    &text,
+                    &scenario_path.display().to_string(),
+                    &[],
+                )
+                .map_err(|e| e.to_string())
+            });
+        if planar {
+            notes.push(
+                "planar mode: solids fractions are slab fractions (particle volume over cell area × bed depth); \
+                 temperatures use d = 2 and d_rot = 1; the 3D KTGF closures are applied to the slab fraction for reference only"
+                    .to_string(),
+            );
+        }
+        let cells = primary.cells();
+        Ok(Pass1 {
+            opts,
+            lo,
+            hi,
+            planar,
+            periodic: first.periodic,
+            gravity: first.gravity,
+            d,
+            d_rot,
+            orient,
+            grids,
+            heights,
+            snapshots: 0,
+            t_first: first.time,
+            t_last: first.time,
+            series,
+            cells: vec![CellPool::default(); cells],
+            fields: FieldAverages::new(cells),
+            wall: [0.0; 2],
+            core: [0.0; 2],
+            energy: CsvTable::new(&EnergyBudget::HEADER),
+            energy_sum: EnergyBudget::default(),
+            pressure,
+            pressure_sum: [0.0; 3],
+            species: None,
+            segregation: header(&[
+                "time_s",
+                "n_small",
+                "n_large",
+                "h_small_m",
+                "h_large_m",
+                "x_large",
+                "S",
+                "S_max",
+                "segregation_index",
+            ]),
+            segregation_values: Vec::new(),
+            ktgf: None,
+            scenario,
+            global_t: [0.0; 2],
+            tally,
+            notes,
+        })
+    }
+
+    fn primary(&self) -> &TallyGrid {
+        &self.grids[0].grid
+    }
+
+    /// Resolves the KTGF settings and the species at the first snapshot
+    /// with particles.
+    fn decide(&mut self, snap: &Snapshot) {
+        let Some(first) = snap.particles.first() else {
+            return;
+        };
+        if self.species.is_none() {
+            self.species = Some(classify(&snap.particles));
+        }
+        if self.ktgf.is_none() {
+            let m = first.material;
+            let state = match &self.scenario {
+                Err(e) => Err(format!(
+                    "KTGF test skipped: cannot read the run's scenario: {e}"
+                )),
+                Ok(s) => match s.contacts.get(m, m) {
+                    None => Err(format!(
+                        "KTGF test skipped: no collision parameters for material {m} in scenario.toml"
+                    )),
+                    Some(c) => {
+                        if s.collisions.tc > 0.0 {
+                            self.notes.push(format!(
+                                "TC model active (tc = {} s): collisions within tc of a particle's previous one are elastic, \
+                                 so the measured dissipation falls below KTGF where they occur",
+                                s.collisions.tc
+                            ));
+                        }
+                        if !c.is_smooth() {
+                            self.notes.push(
+                                "rough particles: Table 5 is for smooth spheres; measured dissipation includes rotational energy"
+                                    .to_string(),
+                            );
+                        }
+                        if s.materials.iter().filter(|m| m.density.is_some()).count() > 1 {
+                            self.notes.push(format!(
+                                "several particle materials: the KTGF test uses e_n of the pair ({m}, {m}), the first particle's material"
+                            ));
+                        }
+                        Ok(KtgfState {
+                            settings: KtgfSettings {
+                                d: self.d,
+                                e_n: c.e_n,
+                                diameter: sauter_diameter(&snap.particles),
+                                min_per_cell: self.opts.min_per_cell,
+                                min_collisions: self.opts.min_collisions,
+                            },
+                            material: m,
+                            samples: CsvTable::new(&KTGF_SAMPLE_HEADER),
+                            count: 0,
+                            collisions: 0,
+                            eps_sum: 0.0,
+                            bins: vec![(0, 0, [0.0; 10]); 33],
+                        })
+                    }
+                },
+            };
+            self.ktgf = Some(state);
+        }
+    }
+
+    fn add(&mut self, snap: &Snapshot, prev: Option<&Snapshot>) {
+        self.decide(snap);
+        self.snapshots += 1;
+        self.t_last = snap.time;
+        let ps = &snap.particles;
+        let (d, d_rot) = (self.d, self.d_rot);
+        // Velocity statistics on every grid.
+        let mut primary_fl = None;
+        for (k, g) in self.grids.iter_mut().enumerate() {
+            let fl = local_fluctuations(ps, &g.grid, self.opts.min_per_cell);
+            g.moments.add_all(&fl);
+            g.cells_used += fl.cells_used as u64;
+            g.cells_skipped += fl.cells_skipped as u64;
+            g.particles_skipped += fl.particles_skipped as u64;
+            let (sums, _) = cell_sums(ps, &g.grid);
+            for e in solids_fraction(&sums, &g.grid) {
+                g.eps[0] += e;
+                g.eps[1] += e * e;
+                g.eps[2] += 1.0;
+            }
+            if k == 0 {
+                primary_fl = Some(fl);
+            }
+        }
+        let fl = primary_fl.unwrap_or_default();
+        let grid = self.primary().clone();
+        // Per-snapshot temperatures.
+        let mut snap_moments = MomentAccumulator::default();
+        snap_moments.add_all(&fl);
+        let st = snap_moments.stats(d, d_rot);
+        let global = local_fluctuations(ps, &single_cell_grid(self.lo, self.hi), 1);
+        let (gm, gmc2) = global.samples.iter().fold((0.0, 0.0), |(m, e), f| {
+            (m + f.mass, e + f.mass * f.c.length_squared())
+        });
+        let t_global = gmc2 / (d as f64 * gm);
+        self.global_t[0] += gmc2;
+        self.global_t[1] += gm;
+        // Cell pools.
+        for f in &fl.samples {
+            let c = &mut self.cells[f.cell];
+            c.mass_used += f.mass;
+            for a in 0..3 {
+                c.mass_c2[a] += f.mass * f.c[a] * f.c[a];
+            }
+            c.inertia_w2 += f.inertia * f.w.length_squared();
+        }
+        let (sums, _) = cell_sums(ps, &grid);
+        let min = self.opts.min_per_cell;
+        for (c, s) in self.cells.iter_mut().zip(&sums) {
+            c.particles += s.count;
+            c.mass += s.mass;
+            c.momentum += s.momentum;
+            if s.count >= min {
+                c.snapshots_used += 1;
+            }
+        }
+        let eps = solids_fraction(&sums, &grid);
+        let flux = vertical_flux(&sums, &grid, &self.orient);
+        self.fields.add(&eps, &flux);
+        for (c, e) in eps.iter().enumerate() {
+            let acc = if is_wall_cell(&grid, c, &self.orient, self.periodic, self.planar) {
+                &mut self.wall
+            } else {
+                &mut self.core
+            };
+            acc[0] += e;
+            acc[1] += 1.0;
+        }
+        let mean_eps = eps.iter().sum::<f64>() / eps.len().max(1) as f64;
+        let mut row = vec![
+            snap.time,
+            ps.len() as f64,
+            fl.samples.len() as f64,
+            fl.cells_used as f64,
+            fl.cells_skipped as f64,
+        ];
+        row.extend(&st.temperature_components);
+        row.extend([
+            st.temperature,
+            st.temperature_rotational,
+            t_global,
+            st.sonine_a2,
+            mean_eps,
+        ]);
+        self.series.row(&row);
+        // Energy budget.
+        let e = energy_budget(ps, &grid, self.gravity, self.lo, self.hi);
+        self.energy.row(&e.row(snap.time));
+        self.energy_sum.add(&e);
+        // Pressure drop.
+        if let (Some(table), Some(gas)) = (self.pressure.as_mut(), snap.gas.as_ref()) {
+            let (pb, pt) = pressure_bottom_top(gas, &self.orient);
+            let ext = self.hi - self.lo;
+            let area = (0..3)
+                .filter(|&a| a != self.orient.vertical)
+                .map(|a| ext[a])
+                .product::<f64>();
+            let weight = ps.iter().map(|p| p.mass).sum::<f64>() * self.gravity.length() / area;
+            table.row(&[snap.time, pb, pt, pb - pt, weight]);
+            self.pressure_sum[0] += pb - pt;
+            self.pressure_sum[1] += weight;
+            self.pressure_sum[2] += 1.0;
+        }
+        // Segregation.
+        if let Some(Ok(species)) = &self.species
+            && let Some(s) = segregation(ps, species, &self.orient, self.lo, self.hi)
+        {
+            self.segregation.row(&[
+                snap.time,
+                s.n_small as f64,
+                s.n_large as f64,
+                s.h_small,
+                s.h_large,
+                s.x_large,
+                s.ratio,
+                s.ratio_max,
+                s.index,
+            ]);
+            self.segregation_values.push(s.index);
+        }
+        // KTGF test over the interval since the previous snapshot.
+        if let (Some(Ok(k)), Some(prev), Some(tally)) =
+            (self.ktgf.as_mut(), prev, snap.collisions.as_ref())
+        {
+            let samples = ktgf_samples(&prev.particles, ps, tally, snap.time, &k.settings);
+            k.add(&samples, tally.interval);
+        }
+    }
+}
+
+/// Checks that `snap` comes from the same box as `first`.
+fn same_run(
+    path: &Path,
+    snap: &Snapshot,
+    lo: DVec3,
+    hi: DVec3,
+    planar: bool,
+) -> anyhow::Result<()> {
+    if snap.lo != lo || snap.hi != hi || snap.planar != planar {
+        bail!(
+            "{}: box {}..{} (planar {}) differs from the first snapshot's {}..{} (planar {}): not from the same run",
+            path.display(),
+            snap.lo,
+            snap.hi,
+            snap.planar,
+            lo,
+            hi,
+            planar
+        );
+    }
+    Ok(())
+}
+
+fn used(snap: &Snapshot, t_start: f64) -> bool {
+    snap.time >= t_start - 1e-12 * t_start.abs()
+}
+
+/// Analyses the snapshots of `run_dir` and writes the results into
+/// `run_dir/analysis/`.
+pub fn analyse_run(run_dir: &Path, opts: &AnalyseOptions) -> anyhow::Result<AnalysisSummary> {
+    check_options(opts)?;
+    let paths = snapshot_paths(run_dir)?;
+    // Pass 1: every statistic.
+    let mut pass: Option<Pass1> = None;
+    let mut prev: Option<Snapshot> = None;
+    let mut last_time = f64::NAN;
+    for path in &paths {
+        let snap = Snapshot::read(path)?;
+        last_time = snap.time;
+        if used(&snap, opts.t_start) {
+            match pass.as_ref() {
+                Some(p) => same_run(path, &snap, p.lo, p.hi, p.planar)?,
+                None => pass = Some(Pass1::new(run_dir, &snap, opts)?),
+            }
+            if let Some(p) = pass.as_mut() {
+                let prev_used = prev.as_ref().filter(|q| used(q, opts.t_start));
+                p.add(&snap, prev_used);
+            }
+        }
+        prev = Some(snap);
+    }
+    let Some(mut p) = pass else {
+        bail!(
+            "--t-start: no snapshot at t >= {} s (the last of {} is at t = {last_time} s)",
+            opts.t_start,
+            paths.len()
+        );
+    };
+    let (d, d_rot) = (p.d, p.d_rot);
+    let results: Vec<CellSizeResult> = p.grids.iter().map(|g| g.result(d, d_rot)).collect();
+    for r in &results {
+        if r.cell_samples_used == 0 {
+            p.notes.push(format!(
+                "cell size {} m: no cell ever held --min-per-cell = {} particles; its statistics are undefined (NaN)",
+                r.grid.cell_size, opts.min_per_cell
+            ));
+        }
+    }
+    let stats = results[0].stats.clone();
+    let grid = p.primary().clone();
+    let (mean_eps_field, mean_flux_field) = p.fields.mean();
+    let [es, es2, en] = p.grids[0].eps;
+    let eps_mean = es / en;
+    let eps_std = (es2 / en - eps_mean * eps_mean).max(0.0).sqrt();
+    let cluster_threshold = (CLUSTER_FACTOR * eps_mean).max(CLUSTER_MIN);
+
+    // Pass 2: histograms and clusters.
+    let mut hist = Histograms::new(opts.bins, &stats, d);
+    let (mut in_clusters, mut particles_total) = (0u64, 0u64);
+    for path in &paths {
+        let snap = Snapshot::read(path)?;
+        if !used(&snap, opts.t_start) {
+            continue;
+        }
+        for f in &local_fluctuations(&snap.particles, &grid, opts.min_per_cell).samples {
+            hist.add(f.c);
+        }
+        let (sums, cells) = cell_sums(&snap.particles, &grid);
+        let eps = solids_fraction(&sums, &grid);
+        particles_total += cells.len() as u64;
+        in_clusters += cells
+            .iter()
+            .filter(|&&c| eps[c] > cluster_threshold)
+            .count() as u64;
+    }
+
+    let out_dir = run_dir.join("analysis");
+    std::fs::create_dir_all(&out_dir).with_context(|| format!("creating {}", out_dir.display()))?;
+    let mut files = Vec::new();
+    let mut write = |name: &str, table: &CsvTable| -> anyhow::Result<()> {
+        table.write(&out_dir.join(name))?;
+        files.push(name.to_string());
+        Ok(())
+    };
+    let axes: Vec<&str> = AXIS_NAMES[..d].to_vec();
+
+    // Velocity distributions.
+    let mut cols = vec!["c_over_sigma".to_string()];
+    cols.extend(axes.iter().map(|a| format!("f_{a}")));
+    cols.push("gaussian".to_string());
+    let mut t = header(&cols.iter().map(String::as_str).collect::<Vec<_>>());
+    for row in hist.component_rows() {
+        t.row(&row);
+    }
+    write("velocity_distribution.csv", &t)?;
+    let mut t = header(&["c_over_sqrt_T", "f", "maxwellian"]);
+    for row in hist.speed_rows() {
+        t.row(&row);
+    }
+    write("speed_distribution.csv", &t)?;
+
+    // Cell-size dependence.
+    let mut cols: Vec<String> = [
+        "cell_size_m",
+        "h_x_m",
+        "h_y_m",
+        "h_z_m",
+        "cells",
+        "cell_samples_used",
+        "cell_samples_skipped",
+        "particles_per_used_cell",
+        "samples",
+    ]
+    .iter()
+    .map(|s| s.to_string())
+    .collect();
+    cols.extend(axes.iter().map(|a| format!("T_{a}_m2_s2")));
+    cols.extend(
+        ["T_m2_s2", "T_rot_m2_s2", "sonine_a2", "sonine_a2_se"]
+            .iter()
+            .map(|s| s.to_string()),
+    );
+    cols.extend(axes.iter().map(|a| format!("kurtosis_{a}")));
+    cols.push("solids_fraction_std_over_mean".to_string());
+    let mut t = header(&cols.iter().map(String::as_str).collect::<Vec<_>>());
+    for r in &results {
+        let mut row = vec![
+            r.grid.cell_size,
+            r.grid.h[0],
+            r.grid.h[1],
+            r.grid.h[2],
+            (r.grid.n[0] * r.grid.n[1] * r.grid.n[2]) as f64,
+            r.cell_samples_used as f64,
+            r.cell_samples_skipped as f64,
+            r.stats.samples as f64 / r.cell_samples_used.max(1) as f64,
+            r.stats.samples as f64,
+        ];
+        row.extend(&r.stats.temperature_components);
+        row.extend([
+            r.stats.temperature,
+            r.stats.temperature_rotational,
+            r.stats.sonine_a2,
+            r.stats.sonine_a2_se,
+        ]);
+        row.extend(&r.stats.kurtosis);
+        row.push(r.solids_fraction_std_over_mean);
+        t.row(&row);
+    }
+    write("cell_size_dependence.csv", &t)?;
+    write("temperature_timeseries.csv", &p.series)?;
+
+    // Cell fields.
+    let mut cols: Vec<String> = [
+        "cell",
+        "i",
+        "j",
+        "k",
+        "x_m",
+        "y_m",
+        "z_m",
+        "snapshots_used",
+        "mean_particles",
+        "solids_fraction",
+        "solids_flux_kg_m2_s",
+        "velocity_x_m_s",
+        "velocity_y_m_s",
+        "velocity_z_m_s",
+    ]
+    .iter()
+    .map(|s| s.to_string())
+    .collect();
+    cols.extend(axes.iter().map(|a| format!("T_{a}_m2_s2")));
+    cols.extend(["T_m2_s2", "T_rot_m2_s2"].iter().map(|s| s.to_string()));
+    let mut t = header(&cols.iter().map(String::as_str).collect::<Vec<_>>());
+    let snapshots = p.snapshots.max(1) as f64;
+    for (c, pool) in p.cells.iter().enumerate() {
+        let [i, j, k] = cell_coords(&grid, c);
+        let x = cell_centre(&grid, c);
+        let v = pool.momentum / pool.mass;
+        let mut row = vec![
+            c as f64,
+            i as f64,
+            j as f64,
+            k as f64,
+            x.x,
+            x.y,
+            x.z,
+            pool.snapshots_used as f64,
+            pool.particles as f64 / snapshots,
+            mean_eps_field[c],
+            mean_flux_field[c],
+            v.x,
+            v.y,
+            v.z,
+        ];
+        let ti: Vec<f64> = (0..d).map(|a| pool.mass_c2[a] / pool.mass_used).collect();
+        row.extend(&ti);
+        row.push(ti.iter().sum::<f64>() / d as f64);
+        row.push(pool.inertia_w2 / (d_rot as f64 * pool.mass_used));
+        t.row(&row);
+    }
+    write("cell_fields.csv", &t)?;
+
+    // Profiles.
+    let o = p.orient;
+    let mut t = header(&[
+        "height_m",
+        "layer_height_m",
+        "width_m",
+        "solids_fraction",
+        "solids_flux_kg_m2_s",
+    ]);
+    for &h in &p.heights {
+        let layer = o.layer_of_height(&grid, h);
+        let eps = width_profile(&mean_eps_field, &grid, &o, layer);
+        let flux = width_profile(&mean_flux_field, &grid, &o, layer);
+        for ((w, e), (_, f)) in eps.iter().zip(&flux) {
+            t.row(&[h, o.layer_height(&grid, layer), *w, *e, *f]);
+        }
+    }
+    write("profiles_width.csv", &t)?;
+    let mut t = header(&["height_m", "solids_fraction", "solids_flux_kg_m2_s"]);
+    let eps_layers = layer_means(&mean_eps_field, &grid, &o);
+    let flux_layers = layer_means(&mean_flux_field, &grid, &o);
+    for (l, (e, f)) in eps_layers.iter().zip(&flux_layers).enumerate() {
+        t.row(&[o.layer_height(&grid, l), *e, *f]);
+    }
+    write("profile_height.csv", &t)?;
+    let pressure_drop = match &p.pressure {
+        Some(table) => {
+            write("pressure_drop.csv", table)?;
+            let [dp, w, n] = p.pressure_sum;
+            Some(PressureDropSummary {
+                mean_pressure_drop: dp / n,
+                mean_bed_weight_per_area: w / n,
+                ratio: dp / w,
+            })
+        }
+        None => {
+            p.notes
+                .push("no gas phase: no pressure-drop time series".to_string());
+            None
+        }
+    };
+    write("energy_budget.csv", &p.energy)?;
+    let mean_energy = p.energy_sum.scaled(1.0 / snapshots);
+    let energy = EnergySummary {
+        mean: mean_energy,
+        percent_of_total: mean_energy.scaled(100.0 / mean_energy.total),
+    };
+
+    // Heterogeneity.
+    let side_walls = has_side_walls(&o, p.periodic, p.planar);
+    let (wall, core) = if side_walls && p.core[1] > 0.0 && p.wall[1] > 0.0 {
+        (Some(p.wall[0] / p.wall[1]), Some(p.core[0] / p.core[1]))
+    } else {
+        p.notes.push(if side_walls {
+            "every analysis cell touches a side wall: no wall-layer/core comparison".to_string()
+        } else {
+            "no side walls: no wall-layer/core comparison".to_string()
+        });
+        (None, None)
+    };
+    let heterogeneity = Heterogeneity {
+        cell_samples: en as u64,
+        mean_solids_fraction: eps_mean,
+        std_solids_fraction: eps_std,
+        std_over_mean: eps_std / eps_mean,
+        cluster_threshold,
+        cluster_particle_fraction: in_clusters as f64 / particles_total.max(1) as f64,
+        wall_layer_solids_fraction: wall,
+        core_solids_fraction: core,
+        wall_to_core_ratio: wall.zip(core).map(|(w, c)| w / c),
+    };
+
+    // KTGF test.
+    let ktgf = match p.ktgf.take() {
+        Some(Ok(k)) => {
+            write("ktgf_samples.csv", &k.samples)?;
+            let (binned, s) = k.binned();
+            write("ktgf_binned.csv", &binned)?;
+            if k.count == 0 {
+                p.notes.push(format!(
+                    "KTGF test: no tally cell had {} particles and {} collisions in an interval (see --min-per-cell, --min-collisions)",
+                    opts.min_per_cell, opts.min_collisions
+                ));
+            }
+            let tally = p.tally.as_ref().map_or_else(
+                || GridInfo::new(&grid, f64::NAN, "none"),
+                |g| {
+                    GridInfo::new(
+                        g,
+                        (0..d).map(|a| g.h[a]).fold(0.0, f64::max),
+                        "tally grid of the run",
+                    )
+                },
+            );
+            Some(KtgfSummary {
+                material: k.material,
+                e_n: k.settings.e_n,
+                diameter: k.settings.diameter,
+                tally_grid: tally,
+                samples: k.count,
+                collisions: k.collisions,
+                mean_solids_fraction: k.eps_sum / k.count as f64,
+                pc_ratio_table5: s[2] / s[3],
+                pc_ratio_cs: s[2] / s[4],
+                pk_ratio: s[8] / s[9],
+                gamma_ratio_table5: s[5] / s[6],
+                gamma_ratio_cs: s[5] / s[7],
+            })
+        }
+        Some(Err(note)) => {
+            p.notes.push(note);
+            None
+        }
+        None => {
+            p.notes
+                .push("KTGF test skipped: no particles in the snapshots".to_string());
+            None
+        }
+    };
+
+    // Segregation.
+    let segregation = match p.species.take() {
+        Some(Ok(species)) if !p.segregation_values.is_empty() => {
+            write("segregation.csv", &p.segregation)?;
+            let v = &p.segregation_values;
+            Some(SegregationSummary {
+                species,
+                snapshots: v.len(),
+                first: v[0],
+                last: v[v.len() - 1],
+                mean: v.iter().sum::<f64>() / v.len() as f64,
+            })
+        }
+        Some(Err(why)) => {
+            p.notes.push(format!("segregation index skipped: {why}"));
+            None
+        }
+        _ => {
+            p.notes
+                .push("segregation index skipped: a species is missing".to_string());
+            None
+        }
+    };
+
+    // ==== FIGURES: to be wired by the lead to src/plot.rs ================
+    // Every figure of `FIGURES` is drawn from a CSV file written above,
+    // e.g. `crate::plot::analysis_figures(&out_dir, &summary)?` after the
+    // summary below is built; the PNG names are listed in
+    // `AnalysisSummary::figures_planned`.
+    // =====================================================================
+
+    files.push("analysis.json".to_string());
+    let total = hist.total.max(1) as f64;
+    let summary = AnalysisSummary {
+        run_dir: run_dir.display().to_string(),
+        output_dir: out_dir.display().to_string(),
+        snapshots_total: paths.len(),
+        snapshots_used: p.snapshots,
+        t_start: opts.t_start,
+        t_first: p.t_first,
+        t_last: p.t_last,
+        planar: p.planar,
+        dimensions: d,
+        rotational_dimensions: d_rot,
+        vertical_axis: AXIS_NAMES[o.vertical],
+        up: if o.up > 0.0 { "+" } else { "-" },
+        width_axis: AXIS_NAMES[o.width],
+        min_per_cell: opts.min_per_cell,
+        primary_grid: results[0].grid.clone(),
+        velocity: stats,
+        temperature_global: p.global_t[0] / (d as f64 * p.global_t[1]),
+        histogram_outside_fraction: hist.outside.map(|n| n as f64 / total),
+        cell_size_dependence: results,
+        heights: p.heights.clone(),
+        heterogeneity,
+        pressure_drop,
+        energy,
+        ktgf,
+        segregation,
+        notes: p.notes.clone(),
+        files,
+        figures_planned: FIGURES.to_vec(),
+    };
+    let json = serde_json::to_string_pretty(&summary).context("encoding analysis.json")?;
+    write_atomic(&out_dir.join("analysis.json"), json.as_bytes())?;
+    Ok(summary)
+}
