@@ -67,8 +67,15 @@ enum Command {
     /// temperatures, profiles, heterogeneity, energy budget, KTGF test,
     /// segregation), written as CSV and JSON into RUN_DIR/analysis/.
     Analyse {
-        /// Run directory written by `edpm run` with [output] snapshot_interval.
-        run_dir: PathBuf,
+        /// Run directories written by `edpm run` with [output]
+        /// snapshot_interval; with two or more, also a side-by-side
+        /// comparison.
+        #[arg(required = true)]
+        run_dirs: Vec<PathBuf>,
+        /// Directory of the comparison of several runs (default:
+        /// `comparison/` beside the first run directory).
+        #[arg(long, value_name = "DIR")]
+        compare_out: Option<PathBuf>,
         /// Use only snapshots at t >= this time (s).
         #[arg(
             long,
@@ -201,7 +208,8 @@ fn main() -> ExitCode {
             },
         ),
         Command::Analyse {
-            run_dir,
+            run_dirs,
+            compare_out,
             t_start,
             cell_size,
             min_per_cell,
@@ -209,7 +217,7 @@ fn main() -> ExitCode {
             bins,
             heights,
         } => edpm::analysis::analyse_cli(
-            &run_dir,
+            &run_dirs,
             &edpm::analysis::AnalyseOptions {
                 t_start,
                 cell_sizes: cell_size,
@@ -218,6 +226,7 @@ fn main() -> ExitCode {
                 heights,
                 min_collisions,
             },
+            compare_out.as_deref(),
         ),
         Command::Bench {
             n,

@@ -77,7 +77,7 @@ pub const KTGF_BIN_WIDTH: f64 = 0.02;
 /// Default cluster threshold: cells with a solids fraction above
 /// `max(CLUSTER_FACTOR × mean, CLUSTER_MIN)` count as dense clusters.
 pub const CLUSTER_FACTOR: f64 = 2.0;
-pub const CLUSTER_MIN: f64 = 0.1;
+pub const CLUSTER_MIN: f64 = 0.01;
 
 /// A figure the plotting code (src/plot.rs) is meant to draw from a CSV
 /// written here.
@@ -225,7 +225,13 @@ pub struct Heterogeneity {
     pub mean_solids_fraction: f64,
     pub std_solids_fraction: f64,
     pub std_over_mean: f64,
-    /// `max(2 × mean, 0.1)`.
+    /// What counting noise alone gives for randomly placed particles:
+    /// √(V̄_p / (ε̄ V_cell)) (Poisson statistics of the particle count).
+    pub poisson_std_over_mean: f64,
+    /// √(max(0, (std/mean)² − poisson²)): heterogeneity beyond counting
+    /// noise, the measure to compare between runs and grids.
+    pub excess_std_over_mean: f64,
+    /// `max(2 × mean, 0.01)`.
     pub cluster_threshold: f64,
     /// Particles in cells above the threshold over all particles.
     pub cluster_particle_fraction: f64,
@@ -326,7 +332,41 @@ pub struct AnalysisSummary {
 }
 
 /// `edpm analyse`: analyses `run_dir` and prints a short report.
-pub fn analyse_cli(run_dir: &Path, opts: &AnalyseOptions) -> anyhow::Result<()> {
+pub fn analyse_cli(
+    run_dirs: &[std::path::PathBuf],
+    opts: &AnalyseOptions,
+    compare_out: Option<&Path>,
+) -> anyhow::Result<()> {
+    let mut summaries = Vec::new();
+    for run_dir in run_dirs {
+        let s = analyse_one(run_dir, opts)?;
+        summaries.push((run_dir.as_path(), s));
+    }
+    if summaries.len() >= 2 {
+        let out = match compare_out {
+            Some(dir) => dir.to_path_buf(),
+            None => run_dirs[0]
+                .parent()
+                .unwrap_or(Path::new("."))
+                .join("comparison"),
+        };
+        let files = super::compare::compare_runs(&summaries, &out)?;
+        eprintln!(
+            "edpm: comparison of {} runs in {}: {}",
+            summaries.len(),
+            out.display(),
+            files.join(", ")
+        );
+        eprint!(
+            "{}",
+            std::fs::read_to_string(out.join("comparison.md")).unwrap_or_default()
+        );
+    }
+    Ok(())
+}
+
+/// Analyses one run and prints its headline figures.
+fn analyse_one(run_dir: &Path, opts: &AnalyseOptions) -> anyhow::Result<AnalysisSummary> {
     let s = analyse_run(run_dir, opts)?;
     let v = &s.velocity;
     eprintln!(
@@ -346,7 +386,7 @@ pub fn analyse_cli(run_dir: &Path, opts: &AnalyseOptions) -> anyhow::Result<()> 
     for note in &s.notes {
         eprintln!("edpm: note: {note}");
     }
-    Ok(())
+    Ok(s)
 }
 
 fn check_options(o: &AnalyseOptions) -> anyhow::Result<()> {
@@ -1078,6 +1118,7 @@ pub fn analyse_run(run_dir: &Path, opts: &AnalyseOptions) -> anyhow::Result<Anal
     // Pass 2: histograms and clusters.
     let mut hist = Histograms::new(opts.bins, &stats, d);
     let (mut in_clusters, mut particles_total) = (0u64, 0u64);
+    let mut particle_volume_sum = 0.0;
     for path in &paths {
         let snap = Snapshot::read(path)?;
         if !used(&snap, opts.t_start) {
@@ -1086,6 +1127,11 @@ pub fn analyse_run(run_dir: &Path, opts: &AnalyseOptions) -> anyhow::Result<Anal
         for f in &local_fluctuations(&snap.particles, &grid, opts.min_per_cell).samples {
             hist.add(f.c);
         }
+        particle_volume_sum += snap
+            .particles
+            .iter()
+            .map(|q| 4.0 / 3.0 * std::f64::consts::PI * q.radius.powi(3))
+            .sum::<f64>();
         let (sums, cells) = cell_sums(&snap.particles, &grid);
         let eps = solids_fraction(&sums, &grid);
         particles_total += cells.len() as u64;
@@ -1282,11 +1328,15 @@ pub fn analyse_run(run_dir: &Path, opts: &AnalyseOptions) -> anyhow::Result<Anal
         });
         (None, None)
     };
+    let mean_particle_volume = particle_volume_sum / particles_total.max(1) as f64;
+    let poisson = (mean_particle_volume / (eps_mean * super::grid::cell_volume(&grid))).sqrt();
     let heterogeneity = Heterogeneity {
         cell_samples: en as u64,
         mean_solids_fraction: eps_mean,
         std_solids_fraction: eps_std,
         std_over_mean: eps_std / eps_mean,
+        poisson_std_over_mean: poisson,
+        excess_std_over_mean: ((eps_std / eps_mean).powi(2) - poisson * poisson).max(0.0).sqrt(),
         cluster_threshold,
         cluster_particle_fraction: in_clusters as f64 / particles_total.max(1) as f64,
         wall_layer_solids_fraction: wall,
@@ -1366,12 +1416,22 @@ pub fn analyse_run(run_dir: &Path, opts: &AnalyseOptions) -> anyhow::Result<Anal
         }
     };
 
-    // ==== FIGURES: to be wired by the lead to src/plot.rs ================
-    // Every figure of `FIGURES` is drawn from a CSV file written above,
-    // e.g. `crate::plot::analysis_figures(&out_dir, &summary)?` after the
-    // summary below is built; the PNG names are listed in
-    // `AnalysisSummary::figures_planned`.
-    // =====================================================================
+    // Figures from the CSV files above, and the last snapshot.
+    let title = run_dir
+        .file_name()
+        .map_or("run".to_string(), |n| n.to_string_lossy().into_owned());
+    match super::figures::draw_all(&out_dir, &title) {
+        Ok(names) => files.extend(names),
+        Err(e) => p.notes.push(format!("figures not drawn: {e:#}")),
+    }
+    if let Some(last) = paths.last() {
+        let snap = Snapshot::read(last)?;
+        let png = out_dir.join("snapshot.png");
+        match super::figures::snapshot_comparison(&png, &[(title.clone(), snap)], o.vertical) {
+            Ok(()) => files.push("snapshot.png".to_string()),
+            Err(e) => p.notes.push(format!("snapshot figure not drawn: {e:#}")),
+        }
+    }
 
     files.push("analysis.json".to_string());
     let total = hist.total.max(1) as f64;

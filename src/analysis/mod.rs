@@ -68,7 +68,9 @@
 //! Values that are undefined (an empty cell's temperature) are written as
 //! `NaN` in CSV and `null` in JSON.
 
+mod compare;
 pub mod driver;
+mod figures;
 pub mod energy;
 pub mod grid;
 pub mod ktgf;
