@@ -17,8 +17,8 @@ use rand::SeedableRng;
 use rand_xoshiro::Xoshiro256PlusPlus;
 
 use crate::collision::ContactParams;
-use crate::domain::{Domain, OutletMode};
 use crate::domain::AxisBoundary;
+use crate::domain::{Domain, OutletMode};
 use crate::engine::{
     CollapseReport, Counters, Engine, EngineConfig, InletZone, NeighbourSearch, Record,
 };
@@ -699,7 +699,11 @@ impl AnalysisSnapshots {
         self.tally.interval += dt;
     }
 
-    fn write<Q: EventQueue>(&mut self, engine: &Engine<Q>, gas: Option<&GasRun>) -> anyhow::Result<()> {
+    fn write<Q: EventQueue>(
+        &mut self,
+        engine: &Engine<Q>,
+        gas: Option<&GasRun>,
+    ) -> anyhow::Result<()> {
         std::fs::create_dir_all(&self.dir)
             .with_context(|| format!("creating {}", self.dir.display()))?;
         let domain = engine.domain();

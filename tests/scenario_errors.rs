@@ -1622,7 +1622,11 @@ proptest! {
 
 #[test]
 fn snapshot_and_tally_keys_are_checked() {
-    let s = with(&["output.snapshot_interval=0.01", "output.tally_cells=[2, 3, 4]"]).unwrap();
+    let s = with(&[
+        "output.snapshot_interval=0.01",
+        "output.tally_cells=[2, 3, 4]",
+    ])
+    .unwrap();
     assert_eq!(s.output.snapshot_interval, Some(0.01));
     assert_eq!(s.output.tally_cells, Some([2, 3, 4]));
     let e = with(&["output.snapshot_interval=0.0"]).unwrap_err();

@@ -118,8 +118,8 @@ pub fn compare_runs(
     let mut series = Vec::new();
     for (dir, _) in runs {
         let csv = dir.join("analysis").join("profiles_width.csv");
-        let text = std::fs::read_to_string(&csv)
-            .with_context(|| format!("reading {}", csv.display()))?;
+        let text =
+            std::fs::read_to_string(&csv).with_context(|| format!("reading {}", csv.display()))?;
         let mut sums: std::collections::BTreeMap<i64, (f64, f64)> = Default::default();
         for line in text.lines().skip(1) {
             let v: Vec<f64> = line.split(',').filter_map(|x| x.parse().ok()).collect();

@@ -1336,7 +1336,9 @@ pub fn analyse_run(run_dir: &Path, opts: &AnalyseOptions) -> anyhow::Result<Anal
         std_solids_fraction: eps_std,
         std_over_mean: eps_std / eps_mean,
         poisson_std_over_mean: poisson,
-        excess_std_over_mean: ((eps_std / eps_mean).powi(2) - poisson * poisson).max(0.0).sqrt(),
+        excess_std_over_mean: ((eps_std / eps_mean).powi(2) - poisson * poisson)
+            .max(0.0)
+            .sqrt(),
         cluster_threshold,
         cluster_particle_fraction: in_clusters as f64 / particles_total.max(1) as f64,
         wall_layer_solids_fraction: wall,

@@ -30,7 +30,11 @@ impl Table {
             .collect();
         let rows = lines
             .filter(|l| !l.trim().is_empty())
-            .map(|l| l.split(',').map(|x| x.parse().unwrap_or(f64::NAN)).collect())
+            .map(|l| {
+                l.split(',')
+                    .map(|x| x.parse().unwrap_or(f64::NAN))
+                    .collect()
+            })
             .collect();
         Ok(Table { header, rows })
     }
@@ -82,8 +86,7 @@ pub fn draw_all(out_dir: &Path, title: &str) -> anyhow::Result<Vec<String>> {
         if table.rows.is_empty() {
             continue;
         }
-        draw(out_dir, title, spec, &table)
-            .with_context(|| format!("drawing {}", spec.name))?;
+        draw(out_dir, title, spec, &table).with_context(|| format!("drawing {}", spec.name))?;
         written.push(spec.name.to_string());
     }
     Ok(written)
@@ -203,7 +206,14 @@ pub fn panel_particles(s: &Snapshot, vertical: usize) -> Vec<(f64, f64, f64, f64
     let horizontal = if vertical == 0 { 1 } else { 0 };
     s.particles
         .iter()
-        .map(|p| (p.pos[horizontal], p.pos[vertical], p.radius, p.vel[vertical]))
+        .map(|p| {
+            (
+                p.pos[horizontal],
+                p.pos[vertical],
+                p.radius,
+                p.vel[vertical],
+            )
+        })
         .collect()
 }
 
@@ -215,11 +225,17 @@ pub fn snapshot_comparison(
     vertical: usize,
 ) -> anyhow::Result<()> {
     let horizontal = if vertical == 0 { 1 } else { 0 };
-    let data: Vec<Vec<(f64, f64, f64, f64)>> =
-        runs.iter().map(|(_, s)| panel_particles(s, vertical)).collect();
+    let data: Vec<Vec<(f64, f64, f64, f64)>> = runs
+        .iter()
+        .map(|(_, s)| panel_particles(s, vertical))
+        .collect();
     let mut speeds: Vec<f64> = data.iter().flatten().map(|p| p.3).collect();
     speeds.sort_by(f64::total_cmp);
-    let pick = |q: f64| speeds.get(((speeds.len() as f64 - 1.0) * q) as usize).copied();
+    let pick = |q: f64| {
+        speeds
+            .get(((speeds.len() as f64 - 1.0) * q) as usize)
+            .copied()
+    };
     let (vmin, vmax) = match (pick(0.02), pick(0.98)) {
         (Some(a), Some(b)) if a < b => (a, b),
         _ => (-1.0, 1.0),

@@ -70,8 +70,8 @@
 
 mod compare;
 pub mod driver;
-mod figures;
 pub mod energy;
+mod figures;
 pub mod grid;
 pub mod ktgf;
 pub mod profiles;

@@ -797,11 +797,11 @@ impl GasPhase {
         let mut worst = (0.0, 0);
         for (c, r) in self.residual.iter().enumerate() {
             let rel = r.abs() / (self.gas_fraction[c] * self.density[c]);
-            if !(rel <= worst.0) {
+            if rel.is_nan() {
+                return (f64::NAN, c);
+            }
+            if rel > worst.0 {
                 worst = (rel, c);
-                if rel.is_nan() {
-                    return (f64::NAN, c);
-                }
             }
         }
         worst
