@@ -111,8 +111,13 @@ pub struct Coupling {
     kicks: Vec<DVec3>,
     solids: Vec<f64>,
     gas_fraction: Vec<f64>,
-    /// Face pressure gradients of the current gas level (Pa/m).
+    /// Face pressure gradients of the current gas level (Pa/m), scaled so
+    /// that the particles take exactly the solids share of each face's
+    /// pressure force.
     gradient: [Vec<f64>; 3],
+    /// Particle volume mapped to each face per face volume: the solids
+    /// fraction the face weights see.
+    face_solids: [Vec<f64>; 3],
     /// Cells whose gas fraction was raised to [`MIN_GAS_FRACTION`] (summed
     /// over steps).
     pub clamped_cells: u64,
@@ -206,6 +211,10 @@ impl Coupling {
         }
         let (cell_strides, face_strides) = strides(&gas.grid);
         let volume = gas.grid.cell_volume();
+        for &a in gas.grid.velocity_axes() {
+            self.face_solids[a].clear();
+            self.face_solids[a].resize(gas.grid.faces(a), 0.0);
+        }
         let law = gas.config.drag;
         let mu = gas.config.viscosity;
         let axes = gas.grid.velocity_axes();
@@ -220,6 +229,13 @@ impl Coupling {
             let mut u = DVec3::ZERO;
             for &a in axes {
                 u[a] = st.interpolate(Some(a), face_strides[a], &gas.velocity[a]);
+            }
+            let particle_volume = 4.0 / 3.0 * std::f64::consts::PI * p.radius.powi(3);
+            for &a in axes {
+                let solids = &mut self.face_solids[a];
+                st.for_each(Some(a), face_strides[a], |f, w| {
+                    solids[f] += w * particle_volume / volume;
+                });
             }
             let slip = (u - p.vel).length();
             let k = particle_drag_coefficient(law, eps, rho, mu, 2.0 * p.radius, slip);
@@ -250,6 +266,22 @@ impl Coupling {
     ) -> &[DVec3] {
         self.kicks.clear();
         face_pressure_gradient(gas, &mut self.gradient);
+        if gas.config.two_way {
+            // The gas momentum at a face takes ε_f ∇p; the particles mapped
+            // to it must take (1 − ε_f) ∇p in total, so that gas and
+            // particles together feel exactly ∇p V_f. Near walls and
+            // inflow faces the weights are renormalised onto interior faces,
+            // where the particles' mapped volume then exceeds (1 − ε_f) V_f.
+            for &a in gas.grid.velocity_axes() {
+                for (f, g) in self.gradient[a].iter_mut().enumerate() {
+                    let mapped = self.face_solids[a][f];
+                    if mapped > 0.0 {
+                        let c = gas.grid.face_coords(a, f);
+                        *g *= (1.0 - gas.face_gas_fraction(a, c)) / mapped;
+                    }
+                }
+            }
+        }
         let (_, face_strides) = strides(&gas.grid);
         let mut to_particles = DVec3::ZERO;
         for ((slot, stencil), &k) in slots.zip(&self.stencils).zip(&self.drag_coefficient) {

@@ -278,6 +278,12 @@ impl GasPhase {
         gas
     }
 
+    /// Gas fraction on face `f` normal to `axis` as the momentum equation
+    /// uses it (mean of the two cells; the adjacent cell on a boundary face).
+    pub fn face_gas_fraction(&self, axis: usize, f: [usize; 3]) -> f64 {
+        self.face_average(&self.gas_fraction, axis, f)
+    }
+
     /// Gravitational acceleration acting on the gas (m/s²).
     pub fn gravity(&self) -> DVec3 {
         self.gravity
