@@ -483,7 +483,12 @@ fn pressure_force_on_a_fixed_bed_at_the_distributor_balances_the_gas() {
         [GasFace::Inflow { velocity: 0.3 }, GasFace::Outlet],
         [GasFace::Periodic; 2],
     ];
-    let mut cfg = config(cells, faces, GasModel::Incompressible { density: 1.2 }, 1.8e-5);
+    let mut cfg = config(
+        cells,
+        faces,
+        GasModel::Incompressible { density: 1.2 },
+        1.8e-5,
+    );
     cfg.initial_velocity = DVec3::new(0.0, 0.3, 0.0);
     let grid = GridGeometry::new(
         DVec3::ZERO,
