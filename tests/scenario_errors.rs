@@ -1636,3 +1636,16 @@ fn snapshot_and_tally_keys_are_checked() {
     assert_eq!(e.path(), Some("output.tally_cells[1]"));
     assert!(e.to_string().contains("[1, 4096]"), "{e}");
 }
+
+#[test]
+fn second_order_splitting_is_refused_with_gas() {
+    let text = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/scenarios/bubbling-bed-jet.toml"
+    ))
+    .unwrap();
+    let o = vec!["time.splitting=second-order".to_string()];
+    let e = Scenario::from_str_named(&text, "jet.toml", &o).unwrap_err();
+    assert_eq!(e.path(), Some("time.splitting"));
+    assert!(e.to_string().contains("first-order"), "{e}");
+}
