@@ -8,6 +8,7 @@ use std::path::Path;
 use anyhow::Context;
 
 use super::driver::AnalysisSummary;
+use super::figures::Table;
 use crate::output::{CsvTable, write_atomic};
 use crate::plot::{self, Series};
 use crate::snapshot::Snapshot;
@@ -117,17 +118,15 @@ pub fn compare_runs(
     // Lateral solids-fraction profiles, averaged over the profile heights.
     let mut series = Vec::new();
     for (dir, _) in runs {
-        let csv = dir.join("analysis").join("profiles_width.csv");
-        let text =
-            std::fs::read_to_string(&csv).with_context(|| format!("reading {}", csv.display()))?;
+        let table = Table::read(&dir.join("analysis").join("profiles_width.csv"))?;
+        let (Some(x), Some(y)) = (table.column("width_m"), table.column("solids_fraction")) else {
+            continue;
+        };
         let mut sums: std::collections::BTreeMap<i64, (f64, f64)> = Default::default();
-        for line in text.lines().skip(1) {
-            let v: Vec<f64> = line.split(',').filter_map(|x| x.parse().ok()).collect();
-            if v.len() >= 4 && v[3].is_finite() {
-                let e = sums.entry((v[2] * 1e9).round() as i64).or_default();
-                e.0 += v[3];
-                e.1 += 1.0;
-            }
+        for r in table.rows.iter().filter(|r| r[y].is_finite()) {
+            let e = sums.entry((r[x] * 1e9).round() as i64).or_default();
+            e.0 += r[y];
+            e.1 += 1.0;
         }
         series.push(Series::new(
             name(dir),

@@ -12,13 +12,13 @@ use crate::plot::{self, ParticlePanel, Series};
 use crate::snapshot::Snapshot;
 
 /// A CSV table of numbers with a header.
-struct Table {
+pub(super) struct Table {
     header: Vec<String>,
-    rows: Vec<Vec<f64>>,
+    pub(super) rows: Vec<Vec<f64>>,
 }
 
 impl Table {
-    fn read(path: &Path) -> anyhow::Result<Table> {
+    pub(super) fn read(path: &Path) -> anyhow::Result<Table> {
         let text =
             std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
         let mut lines = text.lines();
@@ -39,7 +39,7 @@ impl Table {
         Ok(Table { header, rows })
     }
 
-    fn column(&self, name: &str) -> Option<usize> {
+    pub(super) fn column(&self, name: &str) -> Option<usize> {
         self.header.iter().position(|h| h == name)
     }
 

@@ -230,23 +230,19 @@ impl Coupling {
             for &a in axes {
                 u[a] = st.interpolate(Some(a), face_strides[a], &gas.velocity[a]);
             }
-            let particle_volume = 4.0 / 3.0 * std::f64::consts::PI * p.radius.powi(3);
-            for &a in axes {
-                let solids = &mut self.face_solids[a];
-                st.for_each(Some(a), face_strides[a], |f, w| {
-                    solids[f] += w * particle_volume / volume;
-                });
-            }
             let slip = (u - p.vel).length();
             let k = particle_drag_coefficient(law, eps, rho, mu, 2.0 * p.radius, slip);
             self.drag_coefficient.push(k);
             if gas.config.two_way {
+                let solids = 4.0 / 3.0 * std::f64::consts::PI * p.radius.powi(3) / volume;
                 for &a in axes {
                     let (beta, alpha) = (k / volume, -k * p.vel[a] / volume);
                     let (betas, alphas) = (&mut gas.drag_beta[a], &mut gas.drag_alpha[a]);
+                    let mapped = &mut self.face_solids[a];
                     st.for_each(Some(a), face_strides[a], |f, w| {
                         betas[f] += w * beta;
                         alphas[f] += w * alpha;
+                        mapped[f] += w * solids;
                     });
                 }
             }
@@ -335,6 +331,136 @@ pub fn face_pressure_gradient(gas: &GasPhase, out: &mut [Vec<f64>; 3]) {
             let mut lower = c;
             lower[a] = if c[a] == 0 { grid.n[a] - 1 } else { c[a] - 1 };
             *g = (gas.pressure[grid.cell_index(c)] - gas.pressure[grid.cell_index(lower)]) / h;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::gas::mapping::{cell_weights, face_weights, solids_fraction};
+    use crate::gas::{DragLaw, GasFace, GridGeometry};
+    use crate::gas::{GasConfig, GasModel, PorosityMapping, PressureSolverKind};
+
+    fn gas(grid: GridGeometry, porosity: PorosityMapping) -> GasPhase {
+        let faces = std::array::from_fn(|a| {
+            if grid.periodic[a] {
+                [GasFace::Periodic; 2]
+            } else {
+                [GasFace::NoSlip; 2]
+            }
+        });
+        let config = GasConfig {
+            model: GasModel::Incompressible { density: 1.2 },
+            viscosity: 1.8e-5,
+            pressure: 1e5,
+            cells: grid.n,
+            drag: DragLaw::ErgunWenYu,
+            porosity,
+            planar_porosity: PlanarPorosity::Hoomans,
+            faces,
+            jets: Vec::new(),
+            initial_velocity: DVec3::ZERO,
+            pressure_solver: PressureSolverKind::Auto,
+            linear_tolerance: 1e-10,
+            mass_tolerance: 1e-10,
+            max_outer_iterations: 20,
+            two_way: true,
+        };
+        GasPhase::new(grid, config, DVec3::ZERO)
+    }
+
+    /// The cached 1D stencils of the coupling must give exactly the weights
+    /// and gas fractions of the reference mapping functions (which carry
+    /// the property tests): same cells and faces, weights equal to round-off.
+    #[test]
+    fn stencils_match_the_reference_mapping() {
+        let cases = [
+            (
+                GridGeometry::new(
+                    DVec3::ZERO,
+                    DVec3::new(0.03, 0.05, 0.02),
+                    [3, 5, 2],
+                    [true, false, false],
+                    false,
+                ),
+                PorosityMapping::VolumeWeighting,
+            ),
+            (
+                GridGeometry::new(
+                    DVec3::ZERO,
+                    DVec3::new(0.04, 0.06, 0.002),
+                    [4, 6, 1],
+                    [false; 3],
+                    true,
+                ),
+                PorosityMapping::PorousCube { factor: 3.0 },
+            ),
+        ];
+        for (grid, porosity) in cases {
+            let g = gas(grid.clone(), porosity);
+            let (cell_strides, face_strides) = strides(&grid);
+            let mut state = 7u64;
+            let mut next = || {
+                state = state
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                (state >> 11) as f64 / (1u64 << 53) as f64
+            };
+            let extent = grid.h * DVec3::new(grid.n[0] as f64, grid.n[1] as f64, grid.n[2] as f64);
+            let particles: Vec<ParticleView> = (0..40)
+                .map(|i| ParticleView {
+                    id: i,
+                    pos: grid.lo + extent * DVec3::new(next(), next(), next()),
+                    vel: DVec3::ZERO,
+                    omega: DVec3::ZERO,
+                    radius: 0.5e-3 + 1.5e-3 * next(),
+                    mass: 1e-6,
+                    material: 0,
+                })
+                .collect();
+            for p in &particles {
+                let side = Coupling::side(&g, p.radius);
+                let mut st = ParticleStencil::EMPTY;
+                st.fill(&grid, p.pos, side);
+                let mut ours = Vec::new();
+                st.for_each(None, cell_strides, |i, w| ours.push((i, w)));
+                let reference: Vec<(usize, f64)> =
+                    cell_weights(&grid, p.pos, side).iter().collect();
+                assert_eq!(ours.len(), reference.len());
+                for ((i, w), (j, v)) in ours.iter().zip(&reference) {
+                    assert_eq!(i, j);
+                    assert!((w - v).abs() < 1e-14);
+                }
+                for &a in grid.velocity_axes() {
+                    let mut ours = Vec::new();
+                    st.for_each(Some(a), face_strides[a], |i, w| ours.push((i, w)));
+                    let reference: Vec<(usize, f64)> =
+                        face_weights(&grid, a, p.pos, side).iter().collect();
+                    assert_eq!(ours.len(), reference.len());
+                    for ((i, w), (j, v)) in ours.iter().zip(&reference) {
+                        assert_eq!(i, j);
+                        assert!((w - v).abs() < 1e-14);
+                    }
+                }
+            }
+            let mut coupling = Coupling::default();
+            let eps = coupling
+                .gas_fraction(&g, particles.iter().copied().map(Some))
+                .to_vec();
+            let reference = solids_fraction(
+                &grid,
+                particles.iter().map(|p| (p.pos, p.radius)),
+                porosity,
+                PlanarPorosity::Hoomans,
+            );
+            for (e, s) in eps.iter().zip(&reference) {
+                assert!(
+                    (e - (1.0 - s).max(MIN_GAS_FRACTION)).abs() < 1e-12,
+                    "{e} vs {}",
+                    1.0 - s
+                );
+            }
         }
     }
 }

@@ -422,7 +422,11 @@ impl Iterator for WeightsIter {
 
 impl ExactSizeIterator for WeightsIter {}
 
-/// [`axis_weights`] written into `out`.
+/// 1D weights, written into `out`, of the cube of side `side` (m) centred at `pos` along `axis`
+/// with unstrided indices: over the cells (`faces == false`), or over the
+/// control volumes of the faces normal to `axis` (`faces == true`, interior
+/// faces only on a walled axis, as in [`face_weights`]). The product of
+/// these factors over the axes gives [`cell_weights`] and [`face_weights`].
 #[inline(always)]
 pub fn axis_weights_into(
     out: &mut AxisWeights,
@@ -445,39 +449,6 @@ pub fn axis_weights_into(
     let (shift, lo) = if faces { (0.5, 1.0) } else { (0.0, 0.0) };
     let clip = (!grid.periodic[axis]).then_some((lo, n as f64));
     axis_overlap_into(out, t + shift, 0.5 * side / h, n, clip, 1);
-}
-
-/// 1D weights of the cube of side `side` (m) centred at `pos` along `axis`
-/// with unstrided indices: over the cells (`faces == false`), or over the
-/// control volumes of the faces normal to `axis` (`faces == true`, interior
-/// faces only on a walled axis, as in [`face_weights`]). The product of
-/// these factors over the axes gives [`cell_weights`] and [`face_weights`].
-#[inline(always)]
-pub fn axis_weights(
-    grid: &GridGeometry,
-    axis: usize,
-    pos: DVec3,
-    side: f64,
-    faces: bool,
-) -> AxisWeights {
-    if axis == 2 && grid.planar {
-        return if faces {
-            AxisWeights::EMPTY
-        } else {
-            AxisWeights::single(0)
-        };
-    }
-    let h = grid.h[axis];
-    let t = (pos[axis] - grid.lo[axis]) / h;
-    let n = grid.n[axis];
-    let nf = n as f64;
-    if faces {
-        let clip = (!grid.periodic[axis]).then_some((1.0, nf));
-        axis_overlap(t + 0.5, 0.5 * side / h, n, clip, 1)
-    } else {
-        let clip = (!grid.periodic[axis]).then_some((0.0, nf));
-        axis_overlap(t, 0.5 * side / h, n, clip, 1)
-    }
 }
 
 /// Weights of the cube of side `side` (m) centred at `pos` (m) over the
