@@ -105,8 +105,19 @@ pub fn normal_impulse(v_n: f64, m_ab: f64, e_n: f64) -> f64 {
 
 /// Full impulse on a from Eq. 20–21 given the pre-collision contact velocity
 /// `v_ab0` (Eq. 11), the normal `n` and the reduced mass `m_ab`.
+///
+/// A pair that is not approaching (`v_ab0 · n ≥ 0`, e.g. a grazing contact
+/// after round-off) exchanges no impulse: Eq. 20 would pull it together
+/// and Eq. 21 would add slip with it.
 pub fn impulse(n: DVec3, v_ab0: DVec3, m_ab: f64, p: &ContactParams) -> Impulse {
     let v_n = v_ab0.dot(n);
+    if v_n >= 0.0 {
+        return Impulse {
+            j: DVec3::ZERO,
+            j_n: 0.0,
+            kind: CollisionKind::Smooth,
+        };
+    }
     let j_n = normal_impulse(v_n, m_ab, p.e_n);
     let v_t_vec = v_ab0 - v_n * n;
     let v_t = v_t_vec.length();

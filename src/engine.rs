@@ -187,6 +187,9 @@ pub struct Counters {
     /// Neighbour-shell rebuilds (lists) or cell crossings (cells).
     pub neighbour_updates: u64,
     pub stale_events: u64,
+    /// Predicted pair contacts that were not approaching at the contact
+    /// (grazing pairs, by round-off) and were re-predicted, not collided.
+    pub receding_at_contact: u64,
     pub removed: u64,
     pub inserted: u64,
     /// Σ r_ab · J over pair collisions (J m = kg m²/s), the collision virial.
@@ -1056,7 +1059,18 @@ impl<Q: EventQueue> Engine<Q> {
     fn collide_pair(&mut self, i: usize, j: usize, code: u32) {
         self.sync(i);
         self.sync(j);
-        let r = self.kin[i].pos - self.kin[j].pos - self.image_shift[code as usize];
+        // The same arithmetic as `predict`, so that a pair found receding
+        // here is receding there too.
+        let r = self.kin[i].pos - (self.kin[j].pos + self.image_shift[code as usize]);
+        if r.dot(self.kin[i].vel - self.kin[j].vel) >= 0.0 {
+            // A grazing pair whose approach round-off turned into (zero or)
+            // separation at contact: an impulse now would pull the spheres
+            // together (and friction would add slip). It is no collision;
+            // the pair recedes, so i's next prediction skips it.
+            self.counters.receding_at_contact += 1;
+            self.predict(i);
+            return;
+        }
         let dist = r.length();
         let n = r / dist;
         let params = self.restitution(
@@ -1078,7 +1092,9 @@ impl<Q: EventQueue> Engine<Q> {
         } else {
             // Smooth fast path: J = J_n n with J_n from Eq. 20.
             let m_ab = collision::reduced_mass(a.inv_mass, b.inv_mass);
-            let v_n = (a.vel - b.vel).dot(n);
+            // v_n < 0 up to round-off of the normalisation (r·v < 0 above);
+            // a rounded v_n ≥ 0 exchanges no impulse, as in `collision`.
+            let v_n = (a.vel - b.vel).dot(n).min(0.0);
             let j_n = collision::normal_impulse(v_n, m_ab, params.e_n);
             let jv = j_n * n;
             self.kin[i].vel += jv * a.inv_mass;
@@ -1479,5 +1495,59 @@ impl<Q: EventQueue> Engine<Q> {
             }
         }
         p
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::collision::ContactParams;
+    use crate::domain::AxisBoundary;
+    use crate::queue::CalendarQueue;
+
+    /// A pair event whose pair no longer approaches when it fires (what
+    /// round-off can do at a grazing contact) is re-predicted, never
+    /// collided.
+    #[test]
+    fn a_pair_receding_at_its_contact_is_re_predicted_not_collided() {
+        let domain = Domain {
+            lo: DVec3::ZERO,
+            hi: DVec3::splat(0.1),
+            axes: [AxisBoundary::Walls; 3],
+            outlet: None,
+        };
+        let sphere = |x: f64, vx: f64| NewParticle {
+            pos: DVec3::new(x, 0.05, 0.05),
+            vel: DVec3::new(vx, 0.0, 0.0),
+            omega: DVec3::ZERO,
+            radius: 1e-3,
+            material: 0,
+        };
+        let params = ContactParams {
+            e_n: 0.9,
+            beta_0: 0.3,
+            mu: 0.2,
+        };
+        let config = EngineConfig {
+            skin: 5e-3,
+            ..Default::default()
+        };
+        let particles = [sphere(0.050, 0.1), sphere(0.053, -0.1)];
+        let mut engine = Engine::<CalendarQueue>::new(
+            domain,
+            MaterialTable::single(2500.0, params),
+            config,
+            &particles,
+        )
+        .expect("engine");
+        engine.ensure_predicted();
+        assert_eq!(engine.scheduled[0].kind, EventKind::Pair);
+        // Reverse both behind the predictions' back (counters unchanged).
+        engine.kin[0].vel = -engine.kin[0].vel;
+        engine.kin[1].vel = -engine.kin[1].vel;
+        engine.advance(1e-2);
+        assert_eq!(engine.counters.pair_collisions, 0);
+        assert_eq!(engine.counters.receding_at_contact, 2);
+        assert_eq!(engine.kin[0].vel, DVec3::new(-0.1, 0.0, 0.0));
     }
 }

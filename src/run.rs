@@ -512,7 +512,7 @@ fn simulate<Q: EventQueue>(
         };
         if let Some(g) = gas.as_mut() {
             // Drag, pressure gradient and gravity as one first-order kick.
-            g.step(&mut engine, gravity, dt)
+            g.step(&mut engine, dt)
                 .with_context(|| format!("{}: gas phase", s.name))?;
         } else if gravity != DVec3::ZERO {
             let dv = gravity * (kick * dt);

@@ -424,6 +424,34 @@ fn wall_sticking_beta0_zero_gives_rolling_five_sevenths() {
 }
 
 #[test]
+fn a_pair_that_is_not_approaching_exchanges_no_impulse() {
+    // v_n = 0 and v_n slightly positive (a grazing contact after
+    // round-off), with tangential slip and rough parameters: Eq. 20 would
+    // give J_n ≤ 0 (attraction) and Eq. 21 friction −μ J_n along the slip,
+    // which increases it. Exact zero impulse expected, bodies unchanged.
+    let p = ContactParams {
+        e_n: 0.8,
+        beta_0: 0.4,
+        mu: 0.5,
+    };
+    for v_n in [0.0, 1e-17, 1e-3] {
+        let a = sphere(1.0, 1.0, DVec3::new(0.7, 0.0, v_n), DVec3::ZERO);
+        let b = sphere(
+            2.0,
+            0.5,
+            DVec3::new(-0.3, 0.1, 0.0),
+            DVec3::new(1.0, 0.0, 0.0),
+        );
+        let (a1, b1, imp) = collide(DVec3::Z, &a, &b, &p);
+        assert_eq!(imp.j, DVec3::ZERO, "v_n = {v_n}");
+        assert_eq!((a1, b1), (a, b), "v_n = {v_n}");
+        let (w1, _, imp) = collide(DVec3::Z, &a, &Body::WALL, &p);
+        assert_eq!(imp.j, DVec3::ZERO, "wall, v_n = {v_n}");
+        assert_eq!(w1, a, "wall, v_n = {v_n}");
+    }
+}
+
+#[test]
 fn wall_sliding_hand_example() {
     // As above but μ = 0.1: μ J_n = 0.15 < 2/7 ⇒ sliding, J_t = -0.15.
     // v' = (0.85, 0, 0.5); Δω = -5/2 ẑ × (-0.15, 0, 1.5) = (0, 0.375, 0).

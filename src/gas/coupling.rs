@@ -1,21 +1,40 @@
 //! Two-way coupling between the particles and the gas, once per flow step
-//! (seed 001 Eq. 1, 10, 33–39; seed 000 Eq. 41–45):
+//! (seed 001 Eq. 1, 8, 10, 33–39; seed 000 Eq. 41–45).
+//!
+//! Each particle feels seed 001 Eq. 1 without contacts:
+//! `m dv/dt = K (u(r_i) − v) − V_p ∇p(r_i) + m g`, with `K = V_p β/ε_s`
+//! (kg/s). Over a flow step `dt` the gas fields are held at their new level
+//! and the equation is integrated exactly (exponential integrator):
+//! `Δv = φ(λ) dt F/m` with `F` the force at the start of the step,
+//! `λ = K dt/m` and `φ(λ) = (1 − e^{−λ})/λ`. This is unconditionally
+//! stable: a particle whose drag relaxation time is far below `dt` relaxes
+//! to the gas velocity plus its terminal slip instead of overshooting.
 //!
 //! 1. [`Coupling::prepare`]: gas fraction per cell from the particle
-//!    volumes, and for each particle the drag coefficient `K = V_p β/ε_s`
-//!    (kg/s) at its position with the gas velocity of the old level; the
-//!    gas receives the sink `α + β u` at each face with
-//!    `β_f = Σ_i w_if K_i / V_f` and `α_f = −Σ_i w_if K_i v_i / V_f`.
-//! 2. The gas step ([`super::GasPhase::step`]) solves for `u` with that sink
-//!    implicit.
-//! 3. [`Coupling::kicks`]: each particle's velocity change over the flow
-//!    step from drag `K (u(r_i) − v_i)` with the new gas velocity
-//!    interpolated by the same weights `w_if`, the pressure gradient
-//!    `−V_p ∇p(r_i)` and gravity.
+//!    volumes; per particle `K` at the old gas level and `φ`; per face the
+//!    drag sink `α + β u` and the particles' share of the pressure force.
+//! 2. The gas step ([`super::GasPhase::step`]) solves for `u` and `p` with
+//!    that sink implicit.
+//! 3. [`Coupling::kicks`]: each particle's velocity change from the new
+//!    gas velocity and pressure gradient, interpolated by the same weights.
 //!
-//! Because the interpolation and distribution use the same weights and
-//! the weights of a particle sum to one, the drag momentum the particles
-//! receive equals the momentum the gas loses, to round-off.
+//! **What balances exactly.** Every interphase force is distributed to the
+//! faces with the weights `w_if` that interpolate the gas to the particle,
+//! and the weights of a particle sum to one. The gas at face `f` takes
+//! the pressure gradient on the share `ε^p_f = 1 − Σ_i w_if φ_i V_i / V_f`
+//! of its control volume ([`super::GasPhase::pressure_share`]), and the
+//! sink `S_f = Σ_i w_if [φ_i K_i (u_f − v_i) − (1 − φ_i) m_i g] / V_f`.
+//! Summed over the faces, what the gas loses through pressure and drag is
+//! exactly what the particles gain besides their weight,
+//! `Σ_i (m_i Δv_i − m_i g dt)`, to round-off, so that gas and particles
+//! together feel `−∇p_f V_f` at every face. A face whose mapped solids
+//! would leave the gas less than [`MIN_GAS_FRACTION`] of it (possible only
+//! where wall renormalisation piles particle volume onto the first interior
+//! face) gives the gas that floor and scales the particles' pressure force
+//! from it down by the same amount, so the balance still holds.
+//!
+//! The pressure force on a lone particle is `−V_p ∇p` interpolated from the
+//! faces: exact for a uniform gradient at any position in a cell.
 
 use glam::DVec3;
 
@@ -99,11 +118,25 @@ fn strides(grid: &GridGeometry) -> ([usize; 3], [[usize; 3]; 3]) {
     ([1, n[0], n[0] * n[1]], faces)
 }
 
+/// `φ(λ) = (1 − e^{−λ})/λ`: the fraction of the explicit impulse that a
+/// linear relaxation with rate `λ/dt` delivers over `dt` (1 at λ = 0).
+#[inline]
+pub fn relaxation_factor(lambda: f64) -> f64 {
+    if lambda < 1e-8 {
+        // Series 1 − λ/2 + λ²/6: avoids cancellation in 1 − e^{−λ}.
+        1.0 - 0.5 * lambda
+    } else {
+        -(-lambda).exp_m1() / lambda
+    }
+}
+
 /// Per-particle coupling data, indexed by engine slot.
 #[derive(Default)]
 pub struct Coupling {
     /// Drag coefficient K = V_p β/ε_s (kg/s) per slot.
     drag_coefficient: Vec<f64>,
+    /// Relaxation factor φ(K dt/m) per slot.
+    relaxation: Vec<f64>,
     /// Mapping stencil per slot, from [`Coupling::prepare`] (positions do
     /// not change before [`Coupling::kicks`]).
     stencils: Vec<Option<ParticleStencil>>,
@@ -111,20 +144,24 @@ pub struct Coupling {
     kicks: Vec<DVec3>,
     solids: Vec<f64>,
     gas_fraction: Vec<f64>,
-    /// Face pressure gradients of the current gas level (Pa/m), scaled so
-    /// that the particles take exactly the solids share of each face's
-    /// pressure force.
+    /// Face pressure gradients of the current gas level (Pa/m) as the
+    /// particles feel them (scaled on faces where the gas share was
+    /// floored, see the module notes).
     gradient: [Vec<f64>; 3],
-    /// Particle volume mapped to each face per face volume: the solids
-    /// fraction the face weights see.
+    /// Σ_i w_if φ_i V_i / V_f per face: the particles' share of the face's
+    /// pressure force.
     face_solids: [Vec<f64>; 3],
     /// Cells whose gas fraction was raised to [`MIN_GAS_FRACTION`] (summed
     /// over steps).
     pub clamped_cells: u64,
-    /// Drag impulse given to the particles (N s), summed over steps.
-    pub drag_impulse_particles: DVec3,
-    /// Drag impulse taken from the gas (N s), summed over steps.
-    pub drag_impulse_gas: DVec3,
+    /// Faces whose pressure share was raised to [`MIN_GAS_FRACTION`] (summed
+    /// over steps).
+    pub clamped_faces: u64,
+    /// Interphase impulse (drag and pressure) given to the particles (N s),
+    /// summed over steps: Σ (m Δv − m g dt).
+    pub exchange_impulse_particles: DVec3,
+    /// Interphase impulse taken from the gas (N s), summed over steps.
+    pub exchange_impulse_gas: DVec3,
 }
 
 impl Coupling {
@@ -164,18 +201,16 @@ impl Coupling {
                 self.stencils.push(None);
                 continue;
             };
-            self.stencils.push(Some(ParticleStencil::EMPTY));
-            let Some(Some(stencil)) = self.stencils.last_mut() else {
-                unreachable!("just pushed")
-            };
+            let mut stencil = ParticleStencil::EMPTY;
             stencil.fill(grid, p.pos, Self::side(gas, p.radius));
             let amount = if hoomans {
                 std::f64::consts::PI * p.radius * p.radius
             } else {
-                4.0 / 3.0 * std::f64::consts::PI * p.radius.powi(3)
+                sphere_volume(p.radius)
             };
             let solids = &mut self.solids;
             stencil.for_each(None, cell_strides, |c, w| solids[c] += amount * w);
+            self.stencils.push(Some(stencil));
         }
         self.gas_fraction.clear();
         for &s in &self.solids {
@@ -193,16 +228,19 @@ impl Coupling {
         &self.gas_fraction
     }
 
-    /// Step 1: gas fraction into the gas phase, per-particle drag
-    /// coefficients, and the drag sink at the faces. `slots` yields the
+    /// Step 1, for a flow step of `dt` (s): gas fraction into the gas phase,
+    /// per-particle drag coefficients and relaxation factors, and (two-way)
+    /// the drag sink and pressure share at the faces. `slots` yields the
     /// engine's slots in order (`None` for free slots).
     pub fn prepare(
         &mut self,
         gas: &mut GasPhase,
         slots: impl Iterator<Item = Option<ParticleView>> + Clone,
+        dt: f64,
     ) {
         self.gas_fraction(gas, slots.clone());
-        if gas.config.two_way {
+        let two_way = gas.config.two_way;
+        if two_way {
             gas.set_gas_fraction(&self.gas_fraction);
         }
         for a in 0..3 {
@@ -217,11 +255,14 @@ impl Coupling {
         }
         let law = gas.config.drag;
         let mu = gas.config.viscosity;
+        let gravity = gas.gravity();
         let axes = gas.grid.velocity_axes();
         self.drag_coefficient.clear();
+        self.relaxation.clear();
         for (slot, stencil) in slots.zip(&self.stencils) {
             let (Some(p), Some(st)) = (slot, stencil) else {
                 self.drag_coefficient.push(0.0);
+                self.relaxation.push(1.0);
                 continue;
             };
             let eps = st.interpolate(None, cell_strides, &gas.gas_fraction);
@@ -232,55 +273,72 @@ impl Coupling {
             }
             let slip = (u - p.vel).length();
             let k = particle_drag_coefficient(law, eps, rho, mu, 2.0 * p.radius, slip);
+            let phi = relaxation_factor(k * dt / p.mass);
             self.drag_coefficient.push(k);
-            if gas.config.two_way {
-                let solids = 4.0 / 3.0 * std::f64::consts::PI * p.radius.powi(3) / volume;
+            self.relaxation.push(phi);
+            if two_way {
+                let beta = phi * k / volume;
+                let share = phi * sphere_volume(p.radius) / volume;
                 for &a in axes {
-                    let (beta, alpha) = (k / volume, -k * p.vel[a] / volume);
+                    let alpha = -(phi * k * p.vel[a] + (1.0 - phi) * p.mass * gravity[a]) / volume;
                     let (betas, alphas) = (&mut gas.drag_beta[a], &mut gas.drag_alpha[a]);
                     let mapped = &mut self.face_solids[a];
                     st.for_each(Some(a), face_strides[a], |f, w| {
                         betas[f] += w * beta;
                         alphas[f] += w * alpha;
-                        mapped[f] += w * solids;
+                        mapped[f] += w * share;
                     });
+                }
+            }
+        }
+        for &a in axes {
+            for (share, &solids) in gas.pressure_share[a].iter_mut().zip(&self.face_solids[a]) {
+                *share = 1.0 - solids;
+                if *share < MIN_GAS_FRACTION {
+                    *share = MIN_GAS_FRACTION;
+                    self.clamped_faces += 1;
                 }
             }
         }
     }
 
-    /// Step 3: velocity kick per slot (m/s) over a flow step `dt` from drag,
-    /// pressure gradient and gravity, with the gas at its new level. The
-    /// particles must not have moved since [`Coupling::prepare`]. Also books
-    /// the drag impulse on both sides.
+    /// Step 3: velocity kick per slot (m/s) over the flow step `dt` of
+    /// [`Coupling::prepare`] from drag, pressure gradient and gravity, with
+    /// the gas at its new level. The particles must not have moved since
+    /// [`Coupling::prepare`]. Also books the interphase impulse on both
+    /// sides.
     pub fn kicks(
         &mut self,
         gas: &GasPhase,
         slots: impl Iterator<Item = Option<ParticleView>>,
-        gravity: DVec3,
         dt: f64,
     ) -> &[DVec3] {
         self.kicks.clear();
         face_pressure_gradient(gas, &mut self.gradient);
-        if gas.config.two_way {
-            // The gas momentum at a face takes ε_f ∇p; the particles mapped
-            // to it must take (1 − ε_f) ∇p in total, so that gas and
-            // particles together feel exactly ∇p V_f. Near walls and
-            // inflow faces the weights are renormalised onto interior faces,
-            // where the particles' mapped volume then exceeds (1 − ε_f) V_f.
-            for &a in gas.grid.velocity_axes() {
-                for (f, g) in self.gradient[a].iter_mut().enumerate() {
-                    let mapped = self.face_solids[a][f];
-                    if mapped > 0.0 {
-                        let c = gas.grid.face_coords(a, f);
-                        *g *= (1.0 - gas.face_gas_fraction(a, c)) / mapped;
-                    }
+        let mut from_gas = DVec3::ZERO;
+        let volume = gas.grid.cell_volume();
+        for &a in gas.grid.velocity_axes() {
+            for (f, g) in self.gradient[a].iter_mut().enumerate() {
+                // The gas gives up its sink and the pressure force on the
+                // share (1 − ε^p) of the face volume.
+                let sink = gas.drag_alpha[a][f] + gas.drag_beta[a][f] * gas.velocity[a][f];
+                let particles = 1.0 - gas.pressure_share[a][f];
+                from_gas[a] += (sink - particles * *g) * volume * dt;
+                // Floored faces: the particles take only what the gas gave up.
+                let mapped = self.face_solids[a][f];
+                if mapped > 1.0 - MIN_GAS_FRACTION {
+                    *g *= particles / mapped;
                 }
             }
         }
+        if gas.config.two_way {
+            self.exchange_impulse_gas += from_gas;
+        }
+        let gravity = gas.gravity();
         let (_, face_strides) = strides(&gas.grid);
         let mut to_particles = DVec3::ZERO;
-        for ((slot, stencil), &k) in slots.zip(&self.stencils).zip(&self.drag_coefficient) {
+        let per_slot = self.stencils.iter().zip(&self.drag_coefficient);
+        for ((slot, (stencil, &k)), &phi) in slots.zip(per_slot).zip(&self.relaxation) {
             let (Some(p), Some(st)) = (slot, stencil) else {
                 self.kicks.push(DVec3::ZERO);
                 continue;
@@ -291,28 +349,20 @@ impl Coupling {
                 u[a] = st.interpolate(Some(a), face_strides[a], &gas.velocity[a]);
                 grad_p[a] = st.interpolate(Some(a), face_strides[a], &self.gradient[a]);
             }
-            let volume = 4.0 / 3.0 * std::f64::consts::PI * p.radius.powi(3);
-            let drag = k * (u - p.vel);
-            to_particles += drag * dt;
-            self.kicks
-                .push((drag - volume * grad_p) * (dt / p.mass) + gravity * dt);
+            let force = k * (u - p.vel) - sphere_volume(p.radius) * grad_p + p.mass * gravity;
+            let kick = force * (phi * dt / p.mass);
+            to_particles += p.mass * kick - p.mass * gravity * dt;
+            self.kicks.push(kick);
         }
-        self.drag_impulse_particles += to_particles;
-        if gas.config.two_way {
-            let volume = gas.grid.cell_volume();
-            let mut from_gas = DVec3::ZERO;
-            for &a in gas.grid.velocity_axes() {
-                from_gas[a] = gas.drag_alpha[a]
-                    .iter()
-                    .zip(&gas.drag_beta[a])
-                    .zip(&gas.velocity[a])
-                    .map(|((alpha, beta), u)| (alpha + beta * u) * volume * dt)
-                    .sum();
-            }
-            self.drag_impulse_gas += from_gas;
-        }
+        self.exchange_impulse_particles += to_particles;
         &self.kicks
     }
+}
+
+/// Volume of a sphere of radius `r` (m³).
+#[inline]
+fn sphere_volume(r: f64) -> f64 {
+    4.0 / 3.0 * std::f64::consts::PI * r * r * r
 }
 
 /// Pressure gradient normal to each interior face (Pa/m), per axis

@@ -35,9 +35,14 @@ pub struct GasTotals {
     pub max_courant: f64,
     pub max_mass_residual: f64,
     pub clamped_cells: u64,
-    /// Drag impulse given to the particles and taken from the gas (N s).
-    pub drag_impulse_particles: [f64; 3],
-    pub drag_impulse_gas: [f64; 3],
+    /// Faces whose gas pressure share was raised to the floor (summed over
+    /// steps); see `gas::coupling`.
+    pub clamped_faces: u64,
+    /// Interphase impulse (drag and pressure force) given to the particles
+    /// and taken from the gas (N s); equal to round-off with two-way
+    /// coupling.
+    pub exchange_impulse_particles: [f64; 3],
+    pub exchange_impulse_gas: [f64; 3],
     /// CPU time in the gas solver and the coupling (s).
     pub gas_cpu_seconds: f64,
     /// Of which in the gas solver alone (s).
@@ -104,19 +109,14 @@ impl GasRun {
 
     /// Gas step and particle kicks for a flow step of `dt`; the engine must
     /// be synchronised (right after [`Engine::end_flow_step`]).
-    pub fn step<Q: EventQueue>(
-        &mut self,
-        engine: &mut Engine<Q>,
-        gravity: DVec3,
-        dt: f64,
-    ) -> Result<(), GasError> {
+    pub fn step<Q: EventQueue>(&mut self, engine: &mut Engine<Q>, dt: f64) -> Result<(), GasError> {
         let start = crate::bench::cpu_time();
         let slots = (0..engine.slots()).map(|i| engine.particle(i));
-        self.coupling.prepare(&mut self.gas, slots.clone());
+        self.coupling.prepare(&mut self.gas, slots.clone(), dt);
         let solver_start = crate::bench::cpu_time();
         let stats = self.gas.step(dt)?;
         self.totals.solver_cpu_seconds += crate::bench::cpu_time() - solver_start;
-        let kicks = self.coupling.kicks(&self.gas, slots, gravity, dt);
+        let kicks = self.coupling.kicks(&self.gas, slots, dt);
         engine.kick_slots(kicks);
         let courant = self.gas.courant(dt);
         let pressure_drop = self.pressure_drop();
@@ -127,8 +127,9 @@ impl GasRun {
         t.max_courant = t.max_courant.max(courant);
         t.max_mass_residual = t.max_mass_residual.max(stats.mass_residual);
         t.clamped_cells = self.coupling.clamped_cells;
-        t.drag_impulse_particles = self.coupling.drag_impulse_particles.to_array();
-        t.drag_impulse_gas = self.coupling.drag_impulse_gas.to_array();
+        t.clamped_faces = self.coupling.clamped_faces;
+        t.exchange_impulse_particles = self.coupling.exchange_impulse_particles.to_array();
+        t.exchange_impulse_gas = self.coupling.exchange_impulse_gas.to_array();
         let i = &mut self.interval;
         i.steps += 1;
         i.outer += stats.outer_iterations as u64;

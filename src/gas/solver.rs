@@ -4,9 +4,13 @@
 //!
 //! 1. Explicit part of the momentum equation (Eq. 40): old momentum,
 //!    convection (second order, van Leer flux limiter), viscous stress
-//!    (central) and gravity.
+//!    (central) and gravity (on the share ε^p below).
 //! 2. Momentum at the new level with the drag linear-implicit (Eq. 41–45):
-//!    `[(ε ρ)_f + Δt β_f] u_f = S_f − Δt α_f − Δt ε_f (∇p)_f`.
+//!    `[(ε ρ)_f + Δt β_f] u_f = S_f − Δt α_f − Δt ε^p_f (∇p)_f`, where
+//!    `ε^p_f` is the gas's share of the face's pressure force
+//!    ([`GasPhase::pressure_share`]): the gas fraction `1 − ε_s` of Eq. 8,
+//!    with the solids fraction mapped by the coupling with exactly the
+//!    weights that give the particles their `−V_p ∇p`.
 //! 3. Newton iterations on the cell mass residual (Eq. 46–48): the
 //!    Jacobian of the residual with respect to the cell pressures is a
 //!    symmetric 7-point matrix, solved by a [`PressureSolver`].
@@ -140,6 +144,11 @@ pub struct GasPhase {
     pub drag_beta: [Vec<f64>; 3],
     /// α (N/m³).
     pub drag_alpha: [Vec<f64>; 3],
+    /// Share ε^p of each face's control volume on which the gas takes the
+    /// pressure gradient (1 without particles); the particles take the
+    /// rest, so that gas and particles together feel `−∇p V_f`. Set by the
+    /// coupling every step.
+    pub pressure_share: [Vec<f64>; 3],
     role: [Vec<FaceRole>; 3],
     base_role: [Vec<FaceRole>; 3],
     cells_of_face: [Vec<FaceCells>; 3],
@@ -245,6 +254,7 @@ impl GasPhase {
             velocity: faces.map(|n| vec![0.0; n]),
             drag_beta: faces.map(|n| vec![0.0; n]),
             drag_alpha: faces.map(|n| vec![0.0; n]),
+            pressure_share: faces.map(|n| vec![1.0; n]),
             role: faces.map(|n| vec![FaceRole::Solved; n]),
             base_role: faces.map(|n| vec![FaceRole::Solved; n]),
             cells_of_face: Default::default(),
@@ -276,12 +286,6 @@ impl GasPhase {
         }
         gas.density_old.clone_from(&gas.density);
         gas
-    }
-
-    /// Gas fraction on face `f` normal to `axis` as the momentum equation
-    /// uses it (mean of the two cells; the adjacent cell on a boundary face).
-    pub fn face_gas_fraction(&self, axis: usize, f: [usize; 3]) -> f64 {
-        self.face_average(&self.gas_fraction, axis, f)
     }
 
     /// Gravitational acceleration acting on the gas (m/s²).
@@ -576,17 +580,21 @@ impl GasPhase {
         }
     }
 
-    /// Explicit momentum S_f (Eq. 40) of solved and outlet faces.
+    /// Explicit momentum S_f (Eq. 40) of solved and outlet faces. The gas
+    /// weight acts on the same share ε^p of the face volume as the pressure
+    /// gradient, so that a gas at rest around particles at rest stays
+    /// hydrostatic (∇p = ρ g) whatever porosity model sets ε.
     fn explicit_momentum(&mut self, dt: f64) {
         let mu = self.config.viscosity;
         let axes = self.grid.velocity_axes();
         for &a in axes {
             let g = self.gravity[a];
+            let share = &self.pressure_share[a];
             for (f, link) in self.cells_of_face[a].iter().enumerate() {
                 if self.role[a][f] == FaceRole::Outlet {
-                    let (_, m_old, _) =
+                    let (_, m_old, rho_old) =
                         face_values(link, &self.gas_fraction_old, &self.density_old);
-                    self.explicit[a][f] = m_old * (self.velocity[a][f] + dt * g);
+                    self.explicit[a][f] = m_old * self.velocity[a][f] + dt * share[f] * rho_old * g;
                 }
             }
             for stencil in &self.interior[a] {
@@ -595,11 +603,12 @@ impl GasPhase {
                     lower: stencil.lower,
                     upper: stencil.upper,
                 };
-                let (_, m_old, _) = face_values(&link, &self.gas_fraction_old, &self.density_old);
+                let (_, m_old, rho_old) =
+                    face_values(&link, &self.gas_fraction_old, &self.density_old);
                 let u = self.velocity[a][f];
                 let transport =
                     self.convection(a, stencil, axes) - mu * self.diffusion(a, stencil, axes);
-                self.explicit[a][f] = m_old * (u + dt * g) - dt * transport;
+                self.explicit[a][f] = m_old * u + dt * share[f] * rho_old * g - dt * transport;
             }
         }
     }
@@ -769,6 +778,7 @@ impl GasPhase {
             let h = self.grid.h[a];
             for (f, link) in self.cells_of_face[a].iter().enumerate() {
                 let (eps, eps_rho, rho) = face_values(link, &self.gas_fraction, &self.density);
+                let share = self.pressure_share[a][f];
                 let flux = match self.role[a][f] {
                     // Inflow at the density of the old level: the mass flow
                     // is a boundary condition independent of the new
@@ -781,7 +791,7 @@ impl GasPhase {
                         let gradient = face_gradient(link, &self.pressure, p_out, h);
                         let u = (self.explicit[a][f]
                             - dt * self.drag_alpha[a][f]
-                            - dt * eps * gradient)
+                            - dt * share * gradient)
                             / coefficient;
                         self.velocity[a][f] = u;
                         self.coefficient[a][f] = coefficient;
@@ -838,7 +848,8 @@ impl GasPhase {
                 let (eps, _, rho) = face_values(link, &self.gas_fraction, &self.density);
                 let both = link.lower != NONE && link.upper != NONE;
                 let distance = if both { h } else { 0.5 * h };
-                let k = dt * dt * eps * eps * rho / (self.coefficient[a][f] * h * distance);
+                let share = self.pressure_share[a][f];
+                let k = dt * dt * eps * share * rho / (self.coefficient[a][f] * h * distance);
                 if both {
                     let (l, u) = (link.lower as usize, link.upper as usize);
                     m.diag[l] += k;
