@@ -206,12 +206,12 @@ fn fluidized_bed_pressure_drop_is_bed_weight() {
     // below). With the window of 0.9 s: the bed's momentum at the window ends
     // (mass 1.8 g, oscillation velocity ≲ 0.05 m/s) is ≲ 1 % of W T; the
     // distributor plate (bottom wall) carries ≈ 1 % (measured from the wall
-    // impulse); the coupling gives particles in the half cell next to the
-    // distributor the pressure-gradient force of the first interior face
-    // without the gas balancing it, ≈ (1 − ε) h_y / (2 H_bed) ≈ 2 % with
-    // 1 mm cells (results/fluidization/README.md). Measured: 0.987 here,
-    // 0.971 and 0.981 over 0.3–1.5 s with seeds 1 and 2. 5 % is the issue's
-    // criterion.
+    // impulse). Interphase momentum balances exactly (gas::coupling), and
+    // the pressure drop is taken from the bottom cell layer, whose first
+    // interior faces carry the particles of the half cell below it, to the
+    // outlet face. Measured: 0.997 (0.987 before the pressure-force fix,
+    // whose particles near the distributor took the solids share of
+    // each face's force rather than −V_p ∇p). 5 % is the criterion.
     let t_end = 1.2;
     let t_from = 0.3;
     let s = load(&[format!("time.t_end={t_end}")]);

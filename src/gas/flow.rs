@@ -140,28 +140,34 @@ impl GasRun {
         Ok(())
     }
 
-    /// Pressure drop along gravity (Pa): mean pressure of the cell layer at
-    /// the bottom minus that of the layer at the top.
+    /// Pressure drop along gravity (Pa) that carries everything in the
+    /// column: the mean pressure of the bottom cell layer minus that at the
+    /// top, which is the outlet pressure on an outlet face (its momentum
+    /// equation reaches the face) and the top layer's mean otherwise. The
+    /// half cell below the first layer has no gas momentum equation: the
+    /// weights of the particles in it are mapped onto the first interior
+    /// faces, so in a fluidized bed this difference times the cross-section
+    /// is the whole bed's buoyant weight.
     pub fn pressure_drop(&self) -> f64 {
         let Some(axis) = self.pressure_axis else {
             return 0.0;
         };
         let grid = &self.gas.grid;
         let n = grid.n[axis];
-        let mut bottom = 0.0;
-        let mut top = 0.0;
-        let mut count = 0.0;
-        for c in 0..grid.cells() {
-            let k = grid.cell_coords(c)[axis];
-            if k == 0 {
-                bottom += self.gas.pressure[c];
-                count += 1.0;
+        let layer_mean = |k: usize| {
+            let (sum, count) = (0..grid.cells())
+                .filter(|&c| grid.cell_coords(c)[axis] == k)
+                .fold((0.0, 0.0), |(s, m), c| (s + self.gas.pressure[c], m + 1.0));
+            sum / count
+        };
+        let side = |face: usize| {
+            if self.gas.config.faces[axis][face] == super::GasFace::Outlet {
+                self.gas.config.pressure
+            } else {
+                layer_mean(if face == 0 { 0 } else { n - 1 })
             }
-            if k == n - 1 {
-                top += self.gas.pressure[c];
-            }
-        }
-        let drop = (bottom - top) / count;
+        };
+        let drop = side(0) - side(1);
         if self.gas.gravity()[axis] > 0.0 {
             -drop
         } else {

@@ -30,7 +30,7 @@ use glam::DVec3;
 
 use super::config::{GasConfig, GasFace, PressureSolverKind};
 use super::grid::GridGeometry;
-use super::linear::{BandedCholesky, Pcg, PressureSolver, StencilMatrix};
+use super::linear::{BandedCholesky, Pcg, PressureSolver, SolveError, StencilMatrix};
 
 /// How the velocity on a face is determined.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -727,19 +727,31 @@ impl GasPhase {
             self.assemble_jacobian(dt);
             self.correction.iter_mut().for_each(|x| *x = 0.0);
             self.residual.iter_mut().for_each(|r| *r = -*r);
-            let solve = self
-                .linear
-                .solve(
-                    &self.matrix,
-                    &self.residual,
-                    &mut self.correction,
-                    self.config.linear_tolerance,
-                )
-                .map_err(|source| GasError::Linear {
-                    time: t_new,
-                    source,
-                })?;
-            stats.linear_iterations += solve.iterations;
+            let solve = self.linear.solve(
+                &self.matrix,
+                &self.residual,
+                &mut self.correction,
+                self.config.linear_tolerance,
+            );
+            let iterations = match solve {
+                Ok(solve) => solve.iterations,
+                // Inexact Newton: a correction that reduced the linear
+                // residual is still a descent step for the mass residual,
+                // which the outer loop checks. Near convergence the
+                // right-hand side is at round-off level, where the linear
+                // tolerance may be out of reach.
+                Err(SolveError::NotConverged {
+                    iterations,
+                    relative_residual,
+                }) if relative_residual < 0.5 => iterations,
+                Err(source) => {
+                    return Err(GasError::Linear {
+                        time: t_new,
+                        source,
+                    });
+                }
+            };
+            stats.linear_iterations += iterations;
             stats.outer_iterations += 1;
             for (p, dp) in self.pressure.iter_mut().zip(&self.correction) {
                 *p += dp;
