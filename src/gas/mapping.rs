@@ -91,6 +91,13 @@ pub fn hoomans_2d_to_3d(eps_s_2d: f64) -> f64 {
     C * eps_s_2d.max(0.0).powf(1.5)
 }
 
+/// Inverse of [`hoomans_2d_to_3d`]: the area fraction of circles in a plane
+/// whose Hoomans 3D solids fraction is `eps_s_3d`.
+#[inline]
+pub fn hoomans_3d_to_2d(eps_s_3d: f64) -> f64 {
+    (eps_s_3d.max(0.0) / 0.857_382_758_104_991_8).powf(2.0 / 3.0)
+}
+
 /// 1D overlap fractions along one axis. `offset` is the index along the axis
 /// already multiplied by the stride of the axis in the linear index.
 #[derive(Clone, Copy, Debug)]

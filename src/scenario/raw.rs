@@ -72,10 +72,21 @@ pub(super) struct RawOutlet {
     pub mode: OutletMode,
 }
 
+/// `boundaries.inlet.flux_basis`.
+#[derive(Clone, Copy, Debug, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "kebab-case")]
+pub(super) enum RawFluxBasis {
+    Slab,
+    #[serde(rename = "3d-equivalent")]
+    ThreeDEquivalent,
+}
+
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 pub(super) struct RawInlet {
     pub solids_flux: Option<f64>,
+    pub flux_basis: Option<RawFluxBasis>,
+    pub reference_velocity: Option<f64>,
     pub velocity: Option<[f64; 3]>,
     pub zone_height: f64,
     pub population: Option<String>,

@@ -7,11 +7,12 @@ use std::path::PathBuf;
 use glam::DVec3;
 
 use super::diameter::{LOGNORMAL_MIN_MASS, lognormal_mass};
-use super::raw::{self, AxisName, RawAxis, RawDiameter, RawInt, RawScenario};
+use super::raw::{self, AxisName, RawAxis, RawDiameter, RawFluxBasis, RawInt, RawScenario};
 use super::{
     AxisBoundary, Boundaries, CollisionSettings, ContactTable, Diameter, Domain, EngineSettings,
-    InitialState, Inlet, Material, NeighbourChoice, Outlet, OutletMode, OutputSettings, Placement,
-    Population, Region, Scenario, ScenarioError, Splitting, TimeSettings, locate, overrides,
+    FluxBasis, InitialState, Inlet, Material, NeighbourChoice, Outlet, OutletMode, OutputSettings,
+    Placement, Population, Region, Scenario, ScenarioError, Splitting, TimeSettings, locate,
+    overrides,
 };
 use crate::collision::ContactParams;
 
@@ -656,8 +657,40 @@ pub(crate) fn validate(ctx: &Ctx, raw: RawScenario) -> R<Scenario> {
                     ),
                 ));
             }
+            let flux_basis = match (inl.flux_basis, inl.reference_velocity) {
+                (None | Some(RawFluxBasis::Slab), None) => FluxBasis::Slab,
+                (None | Some(RawFluxBasis::Slab), Some(_)) => {
+                    return Err(ctx.err(
+                        format!("{ip}.reference_velocity"),
+                        "only with flux_basis = \"3d-equivalent\"",
+                    ));
+                }
+                (Some(RawFluxBasis::ThreeDEquivalent), v) => {
+                    let key = format!("{ip}.flux_basis");
+                    if !planar {
+                        return Err(ctx.err(
+                            key,
+                            "\"3d-equivalent\" only in planar mode (a 3D riser's flux is the flux)",
+                        ));
+                    }
+                    if solids_flux.is_none() {
+                        return Err(ctx.err(key, "needs a solids_flux (outlet mode \"remove\")"));
+                    }
+                    let vp = format!("{ip}.reference_velocity");
+                    let Some(v) = v else {
+                        return Err(ctx.err(
+                            vp,
+                            "required with flux_basis = \"3d-equivalent\": the particles' mean rise velocity (m/s), e.g. gas velocity minus terminal velocity",
+                        ));
+                    };
+                    FluxBasis::ThreeDEquivalent {
+                        reference_velocity: ctx.positive(&vp, v)?,
+                    }
+                }
+            };
             Some(Inlet {
                 solids_flux,
+                flux_basis,
                 velocity,
                 zone_height: zh,
                 population,
