@@ -359,8 +359,10 @@ fn lone_particle_feels_minus_volume_times_pressure_gradient_anywhere() {
             let mut p = 1e5;
             for a in 0..3 {
                 // Periodic axes carry no uniform gradient (the field must
-                // wrap); walled ones do.
-                if !gas.grid.periodic[a] && !(a == 2 && gas.grid.planar) {
+                // wrap); walled ones do; planar z has no velocity faces.
+                let walled = !gas.grid.periodic[a];
+                let planar_z = a == 2 && gas.grid.planar;
+                if walled && !planar_z {
                     p += gradient[a] * x[a];
                 }
             }

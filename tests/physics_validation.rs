@@ -201,6 +201,14 @@ fn cool(
     out
 }
 
+/// First Sonine coefficient a2 of the homogeneous cooling state of smooth
+/// inelastic hard spheres (d = 3) or disks (d = 2), van Noije & Ernst
+/// (1998): a2 = 16 (1 − e)(1 − 2e²) / (9 + 24 d − e (41 − 8 d) + 30 e² (1 − e)).
+fn sonine_a2(e: f64, d: f64) -> f64 {
+    16.0 * (1.0 - e) * (1.0 - 2.0 * e * e)
+        / (9.0 + 24.0 * d - e * (41.0 - 8.0 * d) + 30.0 * e * e * (1.0 - e))
+}
+
 #[test]
 fn homogeneous_cooling_follows_haffs_law_in_3d_and_planar() {
     let e = 0.9;
@@ -210,21 +218,38 @@ fn homogeneous_cooling_follows_haffs_law_in_3d_and_planar() {
         mu: 0.0,
     };
     for planar in [false, true] {
-        let (domain, particles) = gas(4000, if planar { 0.1 } else { 0.05 }, planar, 21);
         let d = if planar { 2.0 } else { 3.0 };
-        let samples = cool(domain, &particles, smooth, 10.0, 10);
-        let t0 = samples[0].1;
-        for &(tau, t, _) in &samples[1..] {
-            let haff = t0 * (-(1.0 - e * e) * tau / d).exp();
-            // 1 %: the bound. The temperature is exact (all
-            // particles), the collision count is exact, and the deviation
-            // from molecular chaos and the Sonine correction a2 of the HCS
-            // (|a2| < 0.02 for e = 0.9) change the loss per collision by
-            // well under 1 % before clustering (tau = 10 is far from the
-            // clustering regime at these densities).
+        // Haff's law per collision, T = T0 exp(−(1 − e²) τ/d), with the
+        // first Sonine correction of the loss per collision: cooling rate
+        // × (1 + 3a2/16) over collision frequency × (1 − a2/16), that is
+        // × (1 + a2/4) to first order (van Noije & Ernst 1998; a2 = −0.015
+        // in 3D, −0.027 in 2D at e = 0.9). It is applied from τ = 0,
+        // although the melted start is Maxwellian and a2 relaxes to its
+        // HCS value within a few collisions per particle.
+        let loss = (1.0 - e * e) / d * (1.0 + 0.25 * sonine_a2(e, d));
+        // Mean of T/T_Haff − 1 over three independent systems per sample.
+        let seeds = [21, 22, 23];
+        let mut deviation = [0.0; 10];
+        for seed in seeds {
+            let (domain, particles) = gas(4000, if planar { 0.1 } else { 0.05 }, planar, seed);
+            let samples = cool(domain, &particles, smooth, 10.0, 10);
+            let t0 = samples[0].1;
+            for (k, &(tau, t, _)) in samples[1..].iter().enumerate() {
+                deviation[k] += (t / (t0 * (-loss * tau).exp()) - 1.0) / seeds.len() as f64;
+            }
+        }
+        eprintln!("planar {planar}: T/T_Haff − 1 at tau = 1..10: {deviation:+.4?}");
+        for (k, dev) in deviation.iter().enumerate() {
+            // 1 %: the bound. Temperatures and collision counts are
+            // exact; one 4000-particle system scatters by about 0.4 % (its
+            // energy and collision count fluctuate), the mean of three by
+            // 0.25 %. Velocity correlations beyond molecular chaos lower
+            // the loss per collision as τ grows (anchors.md: a few per
+            // cent by τ = 10 without the Sonine correction).
             assert!(
-                ((t - haff) / haff).abs() < 0.01,
-                "planar {planar}: tau {tau}: T = {t}, Haff {haff}"
+                dev.abs() < 0.01,
+                "planar {planar}: tau ≈ {}: T/T_Haff − 1 = {dev:+.4}",
+                k + 1
             );
         }
     }
