@@ -106,14 +106,14 @@ pub const FIGURES: &[FigureSpec] = &[
         y: &[
             "f_x", "f_y", "f_z", "f_x_cell", "f_y_cell", "f_z_cell", "gaussian",
         ],
-        what: "f(C_i/σ_i) (pooled) and f(C_i/√T_c) (each cell's own temperature) against the unit Gaussian",
+        what: "pooled f(C_i/σ_i) and per-cell f(C_i/√T_c) vs the Gaussian",
     },
     FigureSpec {
         name: "speed_distribution.png",
         data: "speed_distribution.csv",
         x: "c_over_sqrt_T",
         y: &["f", "f_cell", "maxwellian"],
-        what: "f(|C|/√T) (pooled) and f(|C|/√T_c) (each cell's own temperature) against the Maxwellian speed distribution",
+        what: "pooled f(|C|/√T) and per-cell f(|C|/√T_c) vs Maxwell",
     },
     FigureSpec {
         name: "temperature_timeseries.png",
@@ -162,7 +162,7 @@ pub const FIGURES: &[FigureSpec] = &[
         data: "ktgf_binned.csv",
         x: "solids_fraction",
         y: &["pc_measured_Pa", "pc_ktgf_Pa", "pc_ktgf_ma_Pa"],
-        what: "measured collisional pressure against KTGF (cells unaffected by TC and the guard)",
+        what: "collisional pressure vs KTGF (cells without TC/guard)",
     },
     FigureSpec {
         name: "ktgf_dissipation.png",
@@ -173,7 +173,7 @@ pub const FIGURES: &[FigureSpec] = &[
             "gamma_n_ktgf_W_m3",
             "gamma_n_ktgf_ma_W_m3",
         ],
-        what: "measured normal dissipation rate against KTGF (cells unaffected by TC and the guard)",
+        what: "normal dissipation vs KTGF (cells without TC/guard)",
     },
     FigureSpec {
         name: "segregation.png",
@@ -422,7 +422,8 @@ fn analyse_one(run_dir: &Path, opts: &AnalyseOptions) -> anyhow::Result<Analysis
     let v = &s.velocity;
     eprintln!(
         "edpm: analysed {} of {} snapshots (t = {:.4} to {:.4} s): T = {:.4e} m²/s², \
-         T_rot = {:.4e} m²/s², a2 = {:.4} ± {:.4}, solids fraction std/mean = {:.3}; results in {}",
+         T_rot = {:.4e} m²/s², a2 = {:.4} ± {:.4} (each cell normalised by its own T: {:.4} ± {:.4}), \
+         solids fraction std/mean = {:.3}; results in {}",
         s.snapshots_used,
         s.snapshots_total,
         s.t_first,
@@ -431,6 +432,8 @@ fn analyse_one(run_dir: &Path, opts: &AnalyseOptions) -> anyhow::Result<Analysis
         v.temperature_rotational,
         v.sonine_a2,
         v.sonine_a2_se,
+        v.sonine_a2_cell_normalised,
+        v.sonine_a2_cell_normalised_se,
         s.heterogeneity.std_over_mean,
         s.output_dir
     );
@@ -985,11 +988,15 @@ impl<'a> Pass1<'a> {
                     )),
                     Some(c) => {
                         if c.e_n < 1.0 {
+                            let tc = if s.collisions.tc > 0.0 {
+                                format!("TC model (tc = {} s) and ", s.collisions.tc)
+                            } else {
+                                String::new()
+                            };
                             self.notes.push(format!(
-                                "TC model (tc = {} s) and collapse guard (max_collisions_per_step = {}, i.e. above {:.3e} collisions/s per particle at dt_flow = {} s): \
+                                "{tc}collapse guard (max_collisions_per_step = {}, i.e. above {:.3e} collisions/s per particle at dt_flow = {} s): \
                                  cells where they made collisions elastic are flagged (altered_collisions in ktgf_samples.csv) and left out of \
                                  ktgf_binned.csv and the `test` ratios, and left out of `velocity_unaffected`",
-                                s.collisions.tc,
                                 s.collisions.max_collisions_per_step,
                                 s.collisions.max_collisions_per_step as f64 / s.time.dt_flow,
                                 s.time.dt_flow
