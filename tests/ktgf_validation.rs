@@ -280,7 +280,7 @@ fn smooth(e_n: f64) -> ContactParams {
 /// Both equations of state are within 0.2 % of molecular dynamics at these
 /// densities; 2e5 collisions put the statistical error of the virial near
 /// 0.3 %: 2 % (the bound) leaves room for neither to matter.
-/// (Measured: 0.9993 and 0.9988.)
+/// (Measured: 1.0002 and 0.9974.)
 #[test]
 fn elastic_collisional_pressure_matches_enskog_in_3d_and_2d() {
     let (domain, ps) = homogeneous(2048, 0.25, false, false, 1);
@@ -306,11 +306,11 @@ fn elastic_collisional_pressure_matches_enskog_in_3d_and_2d() {
 /// et al. 2002, Phys. Rev. E 65, 011303, for disks); the Sonine
 /// coefficient of the cooling state (|a2| < 0.03) changes the dissipation
 /// by under 0.5 %. Measured here: at e = 0.95 and moderate density
-/// (ε = 0.2, ν = 0.2) p_c and γ_n are 0.2–1.9 % below Enskog (3D: 0.9981,
-/// 0.9964; 2D: 0.9895, 0.9813); at e = 0.9 (ε = 0.1, ν = 0.1) 0.9–3.1 %
-/// (3D: 0.9911, 0.9847; 2D: 0.9777, 0.9694). Asserted: p_c within 2 % and
+/// (ε = 0.2, ν = 0.2) p_c and γ_n are 0.4–1.7 % below Enskog (3D: 0.9964,
+/// 0.9941; 2D: 0.9880, 0.9829); at e = 0.9 (ε = 0.1, ν = 0.1) 0.6–2.8 %
+/// (3D: 0.9942, 0.9910; 2D: 0.9787, 0.9720). Asserted: p_c within 2 % and
 /// γ_n within 5 % at e = 0.95; γ_n within 5 % (the bound for
-/// e ≥ 0.9) and p_c within 4 % (the measured 2.2 % and 4 standard errors)
+/// e ≥ 0.9) and p_c within 4 % (the measured 2.1 % and 4 standard errors)
 /// at e = 0.9.
 #[test]
 fn near_elastic_dissipation_and_pressure_match_enskog_in_3d_and_2d() {
@@ -343,10 +343,10 @@ fn near_elastic_dissipation_and_pressure_match_enskog_in_3d_and_2d() {
 /// T_rot (`tangential_to_normal_loss`). The collision-rate deficit of the
 /// cooling state (see above) is common to both, and larger here, since
 /// friction makes the collisions effectively less elastic (the tangential
-/// loss is 5.5 (3D) and 2.4 (2D) times the normal one; measured 1–3 %
+/// loss is 5.5 (3D) and 2.4 (2D) times the normal one; measured 0.7–2.2 %
 /// below for both): each within 5 %. Their ratio, the mean tangential over
 /// normal loss per collision, is free of it: within 3 % of the theory
-/// (measured: +0.4 % in 3D, −0.6 % in 2D).
+/// (measured: +0.6 % in 3D, +0.1 % in 2D).
 #[test]
 fn rough_particles_dissipate_as_the_rough_sphere_average_predicts() {
     let rough = ContactParams {
