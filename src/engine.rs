@@ -138,6 +138,29 @@ pub struct CollisionRecord {
     pub kind: CollisionKind,
     /// Kinetic energy lost (J), ≥ 0 up to round-off.
     pub dissipated: f64,
+    /// The part of `dissipated` due to the normal impulse,
+    /// `½ (1 − e_n²) m_ab v_n²` with the `e_n` applied (J); the rest is
+    /// tangential (friction and spin). Exact: for solid spheres the normal
+    /// and tangential impulses change the kinetic energy independently.
+    pub dissipated_normal: f64,
+    /// The rule that made this collision elastic (`e_n = 1` instead of the
+    /// nominal `e_n < 1`), if any.
+    pub made_elastic: Option<ElasticRule>,
+    /// What the nominal parameters would have dissipated minus what was
+    /// dissipated (J); 0 unless `made_elastic`. Usually > 0; it can be
+    /// slightly negative for a sliding contact, whose friction impulse
+    /// `μ J_n` grows with `J_n`.
+    pub undissipated: f64,
+}
+
+/// Why a collision was made elastic.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+pub enum ElasticRule {
+    /// The TC model: a partner collided less than `tc` before.
+    Tc,
+    /// The collapse guard: a partner is past `max_collisions_per_step`
+    /// in this flow step (takes precedence when both apply).
+    CollapseGuard,
 }
 
 /// A change of particle state, kept when `record_events` is set: together
@@ -194,10 +217,24 @@ pub struct Counters {
     pub inserted: u64,
     /// Σ r_ab · J over pair collisions (J m = kg m²/s), the collision virial.
     pub virial: f64,
-    /// Kinetic energy dissipated in pair collisions (J).
+    /// Kinetic energy dissipated in pair collisions (J), the sum of the
+    /// next two.
     pub dissipated_pair: f64,
+    /// Of it, the part of the normal impulses `Σ ½ (1 − e_n²) m_ab v_n²`
+    /// (what normal-only kinetic theory describes) and the tangential rest
+    /// (friction and spin) (J).
+    pub dissipated_pair_normal: f64,
+    pub dissipated_pair_tangential: f64,
     /// Kinetic energy dissipated in wall collisions (J).
     pub dissipated_wall: f64,
+    /// Collisions (pair and wall) made elastic by the TC model and by the
+    /// collapse guard, and the energy they did not dissipate: nominal minus
+    /// actual loss (J). Only collisions whose nominal `e_n` is below 1
+    /// count; one both rules apply to counts for the guard.
+    pub tc_collisions: u64,
+    pub tc_undissipated: f64,
+    pub guard_collisions: u64,
+    pub guard_undissipated: f64,
     /// Momentum given to each wall face (N s), in face order.
     pub wall_impulse: [DVec3; 6],
 }
@@ -1011,25 +1048,81 @@ impl<Q: EventQueue> Engine<Q> {
         }
     }
 
-    /// Normal restitution for a contact, after the TC model and the
-    /// collapse guard: a particle past `max_collisions_per_step` collides
-    /// elastically for the rest of the step (it is reported at the step's
-    /// end), so that inelastic collapse cannot stall the event loop.
+    /// Contact parameters after the TC model and the collapse guard, and
+    /// the rule that changed them: a collision within `tc` of either
+    /// partner's previous one is elastic (TC), and so is every collision of
+    /// a particle past `max_collisions_per_step` in the current flow step
+    /// (the guard, reported at the step's end), so that inelastic collapse
+    /// cannot stall the event loop. Both set `e_n = 1` and keep the
+    /// tangential parameters. The guard counts collisions per flow step, so
+    /// whether it fires depends on `dt_flow`: it acts above a collision
+    /// rate of `max_collisions_per_step / dt_flow` per particle.
     #[inline]
-    fn restitution(&self, params: &ContactParams, i: usize, j: Option<usize>) -> ContactParams {
+    fn restitution(
+        &self,
+        params: &ContactParams,
+        i: usize,
+        j: Option<usize>,
+    ) -> (ContactParams, Option<ElasticRule>) {
+        if params.e_n == 1.0 {
+            return (*params, None);
+        }
         let tc = self.config.tc;
         let recent = |k: usize| self.now - self.last_collision[k] < tc;
         let collapsing = |k: usize| self.step_collisions[k] >= self.config.max_collisions_per_step;
-        if (tc > 0.0 && (recent(i) || j.is_some_and(recent)))
-            || collapsing(i)
-            || j.is_some_and(collapsing)
-        {
-            return ContactParams {
-                e_n: 1.0,
-                ..*params
-            };
+        let rule = if collapsing(i) || j.is_some_and(collapsing) {
+            ElasticRule::CollapseGuard
+        } else if tc > 0.0 && (recent(i) || j.is_some_and(recent)) {
+            ElasticRule::Tc
+        } else {
+            return (*params, None);
+        };
+        let elastic = ContactParams {
+            e_n: 1.0,
+            ..*params
+        };
+        (elastic, Some(rule))
+    }
+
+    /// The normal part of a collision's loss and, when `rule` made it
+    /// elastic, the loss the nominal parameters would have given minus
+    /// `dissipated`; also adds the alteration to the counters. `a`, `b` are
+    /// the bodies before the collision (`Body::WALL` for a wall).
+    fn account_losses(
+        &mut self,
+        n: DVec3,
+        (a, b): (&Body, &Body),
+        nominal: &ContactParams,
+        rule: Option<ElasticRule>,
+        dissipated: f64,
+    ) -> (f64, f64) {
+        let m_ab = collision::reduced_mass(a.inv_mass, b.inv_mass);
+        let v_n = (a.vel - b.vel).dot(n);
+        let normal_loss = |e: f64| 0.5 * (1.0 - e * e) * m_ab * v_n * v_n;
+        let Some(rule) = rule else {
+            return (normal_loss(nominal.e_n), 0.0);
+        };
+        let nominal_loss = if self.rough {
+            let (a2, b2, _) = collision::collide(n, a, b, nominal);
+            collision::kinetic_energy(a) + collision::kinetic_energy(b)
+                - collision::kinetic_energy(&a2)
+                - collision::kinetic_energy(&b2)
+        } else {
+            normal_loss(nominal.e_n)
+        };
+        let undissipated = nominal_loss - dissipated;
+        match rule {
+            ElasticRule::Tc => {
+                self.counters.tc_collisions += 1;
+                self.counters.tc_undissipated += undissipated;
+            }
+            ElasticRule::CollapseGuard => {
+                self.counters.guard_collisions += 1;
+                self.counters.guard_undissipated += undissipated;
+            }
         }
-        *params
+        // Elastic: the normal impulse dissipates nothing.
+        (0.0, undissipated)
     }
 
     fn note_collision(&mut self, i: usize, partner: u32) {
@@ -1073,11 +1166,8 @@ impl<Q: EventQueue> Engine<Q> {
         }
         let dist = r.length();
         let n = r / dist;
-        let params = self.restitution(
-            self.materials.pair(self.material[i], self.material[j]),
-            i,
-            Some(j),
-        );
+        let nominal = *self.materials.pair(self.material[i], self.material[j]);
+        let (params, rule) = self.restitution(&nominal, i, Some(j));
         let (a, b) = (self.body(i), self.body(j));
         let (impulse, kind, dissipated) = if self.rough {
             let (a2, b2, imp) = collision::collide(n, &a, &b, &params);
@@ -1102,9 +1192,13 @@ impl<Q: EventQueue> Engine<Q> {
             let loss = 0.5 * (1.0 - params.e_n * params.e_n) * m_ab * v_n * v_n;
             (jv, CollisionKind::Smooth, loss)
         };
+        let (dissipated_normal, undissipated) =
+            self.account_losses(n, (&a, &b), &nominal, rule, dissipated);
         self.counters.pair_collisions += 1;
         self.counters.virial += dist * impulse.dot(n);
         self.counters.dissipated_pair += dissipated;
+        self.counters.dissipated_pair_normal += dissipated_normal;
+        self.counters.dissipated_pair_tangential += dissipated - dissipated_normal;
         self.note_collision(i, j as u32);
         self.note_collision(j, i as u32);
         if self.config.record_events {
@@ -1119,6 +1213,9 @@ impl<Q: EventQueue> Engine<Q> {
                 normal: n,
                 kind,
                 dissipated,
+                dissipated_normal,
+                made_elastic: rule,
+                undissipated,
             }));
         }
         self.predict(i);
@@ -1130,10 +1227,13 @@ impl<Q: EventQueue> Engine<Q> {
         let axis = (face / 2) as usize;
         let mut n = DVec3::ZERO;
         n[axis] = if face.is_multiple_of(2) { 1.0 } else { -1.0 };
-        let params = self.restitution(self.materials.wall(self.material[i]), i, None);
+        let nominal = *self.materials.wall(self.material[i]);
+        let (params, rule) = self.restitution(&nominal, i, None);
         let a = self.body(i);
         let (a2, _, imp) = collision::collide(n, &a, &Body::WALL, &params);
         let loss = collision::kinetic_energy(&a) - collision::kinetic_energy(&a2);
+        let (loss_normal, undissipated) =
+            self.account_losses(n, (&a, &Body::WALL), &nominal, rule, loss);
         self.kin[i].vel = a2.vel;
         self.omega[i] = a2.omega;
         self.counters.wall_collisions += 1;
@@ -1152,6 +1252,9 @@ impl<Q: EventQueue> Engine<Q> {
                 normal: n,
                 kind: imp.kind,
                 dissipated: loss,
+                dissipated_normal: loss_normal,
+                made_elastic: rule,
+                undissipated,
             }));
         }
         self.predict(i);

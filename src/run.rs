@@ -71,6 +71,16 @@ pub fn run_cli(
         summary.cpu_seconds,
         out_dir.display()
     );
+    let c = &summary.counters;
+    if c.tc_collisions + c.guard_collisions > 0 {
+        eprintln!(
+            "edpm: made elastic: {} collisions by the TC model, {} by the collapse guard \
+             ({:.2} % of the nominal dissipation did not happen; see summary.json)",
+            c.tc_collisions,
+            c.guard_collisions,
+            100.0 * summary.elastic_overrides.undissipated_fraction
+        );
+    }
     Ok(())
 }
 
@@ -102,10 +112,55 @@ pub struct Summary {
     /// Particles that exceeded `max_collisions_per_step` (first 1000).
     pub collapse_reports: Vec<CollapseReport>,
     pub collapse_reports_total: usize,
+    /// What the TC model and the collapse guard changed (the totals are in
+    /// `counters`: `tc_collisions`, `tc_undissipated`, `guard_collisions`,
+    /// `guard_undissipated`).
+    pub elastic_overrides: ElasticOverrides,
     /// Size of the event log (bytes), when one was written.
     pub log_bytes: Option<u64>,
     /// Gas-phase totals of a gas-coupled run.
     pub gas: Option<GasTotals>,
+}
+
+/// Settings and shares of the collisions that the TC model and the
+/// collapse guard made elastic (`e_n = 1` instead of the nominal value).
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct ElasticOverrides {
+    /// TC duration (s); 0: off.
+    pub tc: f64,
+    /// The guard makes a particle's collisions elastic once it has had this
+    /// many in the current flow step.
+    pub max_collisions_per_step: u64,
+    /// The guard's trigger as a collision rate, `max_collisions_per_step /
+    /// dt_flow` per particle (1/s): it counts per flow step, so a smaller
+    /// `dt_flow` raises the rate needed to trigger it and changes where it
+    /// acts.
+    pub guard_rate_threshold: f64,
+    /// Pair and wall collisions made elastic by TC and by the guard, as
+    /// fractions of all pair and wall collisions.
+    pub tc_fraction: f64,
+    pub guard_fraction: f64,
+    /// Energy not dissipated by them over what the nominal parameters would
+    /// have dissipated in all collisions, `U / (D + U)` with `U` the
+    /// undissipated and `D` the dissipated energy (pairs and walls).
+    pub undissipated_fraction: f64,
+}
+
+impl ElasticOverrides {
+    fn new(s: &Scenario, c: &Counters) -> Self {
+        let collisions = (c.pair_collisions + c.wall_collisions) as f64;
+        let undissipated = c.tc_undissipated + c.guard_undissipated;
+        let dissipated = c.dissipated_pair + c.dissipated_wall;
+        let share = |x: f64, total: f64| if total > 0.0 { x / total } else { 0.0 };
+        ElasticOverrides {
+            tc: s.collisions.tc,
+            max_collisions_per_step: s.collisions.max_collisions_per_step,
+            guard_rate_threshold: s.collisions.max_collisions_per_step as f64 / s.time.dt_flow,
+            tc_fraction: share(c.tc_collisions as f64, collisions),
+            guard_fraction: share(c.guard_collisions as f64, collisions),
+            undissipated_fraction: share(undissipated, dissipated + undissipated),
+        }
+    }
 }
 
 /// The engine's view of the scenario's box.
@@ -641,6 +696,7 @@ fn simulate<Q: EventQueue>(
         inlet_backlog: feeder.as_ref().map_or(0, |f| f.backlog(s)) + engine.pending_reinsertions(),
         collapse_reports: engine.collapse_reports.iter().take(1000).copied().collect(),
         collapse_reports_total: engine.collapse_reports.len(),
+        elastic_overrides: ElasticOverrides::new(s, &engine.counters),
         log_bytes,
         gas: gas.as_ref().map(|g| g.totals),
     };

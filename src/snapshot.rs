@@ -15,8 +15,9 @@ use serde::{Deserialize, Serialize};
 use crate::engine::{CollisionRecord, ParticleView, Partner};
 use crate::output::write_atomic;
 
-/// Version of the snapshot format.
-pub const SNAPSHOT_VERSION: u32 = 1;
+/// Version of the snapshot format: 2 split the tally's dissipation into
+/// normal and tangential parts and added the TC/guard alterations.
+pub const SNAPSHOT_VERSION: u32 = 2;
 
 /// One particle in a snapshot (SI units).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -73,7 +74,8 @@ impl TallyGrid {
     }
 }
 
-/// Collisions per cell over an interval, located at the contact point.
+/// Collisions per cell over an interval, located at the contact point
+/// (walls: at the particle's centre).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct CollisionTally {
     pub grid: TallyGrid,
@@ -84,11 +86,21 @@ pub struct CollisionTally {
     /// Collision virial Σ σ n·J per cell (J), for the collisional pressure
     /// p_c = Σ σ n·J / (d V Δt) with d the number of moving dimensions.
     pub virial: Vec<f64>,
-    /// Kinetic energy dissipated in pair collisions per cell (J).
-    pub dissipated: Vec<f64>,
-    /// Wall collisions per cell and the energy they dissipated (J).
+    /// Kinetic energy dissipated in pair collisions per cell (J): by the
+    /// normal impulses (`Σ ½ (1 − e_n²) m_ab v_n²`, what normal-only kinetic
+    /// theory predicts) and the tangential rest (friction and spin).
+    pub dissipated_normal: Vec<f64>,
+    pub dissipated_tangential: Vec<f64>,
+    /// Pair collisions the TC model or the collapse guard made elastic,
+    /// and the energy they did not dissipate, nominal minus actual (J).
+    pub pair_altered: Vec<u64>,
+    pub pair_undissipated: Vec<f64>,
+    /// Wall collisions per cell, the energy they dissipated (J), and the
+    /// same alteration counts as for pairs.
     pub wall_collisions: Vec<u64>,
     pub wall_dissipated: Vec<f64>,
+    pub wall_altered: Vec<u64>,
+    pub wall_undissipated: Vec<f64>,
 }
 
 impl CollisionTally {
@@ -99,15 +111,21 @@ impl CollisionTally {
             interval: 0.0,
             pair_collisions: vec![0; n],
             virial: vec![0.0; n],
-            dissipated: vec![0.0; n],
+            dissipated_normal: vec![0.0; n],
+            dissipated_tangential: vec![0.0; n],
+            pair_altered: vec![0; n],
+            pair_undissipated: vec![0.0; n],
             wall_collisions: vec![0; n],
             wall_dissipated: vec![0.0; n],
+            wall_altered: vec![0; n],
+            wall_undissipated: vec![0.0; n],
         }
     }
 
     /// Adds one collision; `wrap` maps a stored position into the box.
     pub fn add(&mut self, r: &CollisionRecord, wrap: impl Fn(DVec3) -> DVec3) {
         let a = r.after[0];
+        let altered = u64::from(r.made_elastic.is_some());
         match r.b {
             Partner::Particle(_) => {
                 // Contact distance from the positions, as the minimum image:
@@ -129,24 +147,30 @@ impl CollisionTally {
                 let c = self.grid.cell_of(wrap(a.pos - 0.5 * sigma * r.normal));
                 self.pair_collisions[c] += 1;
                 self.virial[c] += sigma * r.impulse.dot(r.normal);
-                self.dissipated[c] += r.dissipated;
+                self.dissipated_normal[c] += r.dissipated_normal;
+                self.dissipated_tangential[c] += r.dissipated - r.dissipated_normal;
+                self.pair_altered[c] += altered;
+                self.pair_undissipated[c] += r.undissipated;
             }
             _ => {
                 let c = self.grid.cell_of(wrap(a.pos));
                 self.wall_collisions[c] += 1;
                 self.wall_dissipated[c] += r.dissipated;
+                self.wall_altered[c] += altered;
+                self.wall_undissipated[c] += r.undissipated;
             }
         }
     }
 
+    /// Whether the TC model or the collapse guard altered a collision
+    /// (pair or wall) in cell `c` during the interval.
+    pub fn altered(&self, c: usize) -> bool {
+        self.pair_altered[c] + self.wall_altered[c] > 0
+    }
+
     /// Clears the counts for the next interval.
     pub fn reset(&mut self) {
-        self.interval = 0.0;
-        self.pair_collisions.iter_mut().for_each(|x| *x = 0);
-        self.virial.iter_mut().for_each(|x| *x = 0.0);
-        self.dissipated.iter_mut().for_each(|x| *x = 0.0);
-        self.wall_collisions.iter_mut().for_each(|x| *x = 0);
-        self.wall_dissipated.iter_mut().for_each(|x| *x = 0.0);
+        *self = CollisionTally::new(self.grid.clone());
     }
 }
 
@@ -195,6 +219,18 @@ impl Snapshot {
 
     pub fn read(path: &Path) -> anyhow::Result<Snapshot> {
         let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
+        // The version is the first field (4 bytes, little-endian): check it
+        // before decoding a layout it may not have.
+        if let Some(v) = bytes.get(..4) {
+            let version = u32::from_le_bytes(v.try_into().expect("4 bytes"));
+            if version != SNAPSHOT_VERSION && (1..SNAPSHOT_VERSION).contains(&version) {
+                anyhow::bail!(
+                    "{}: snapshot version {version} (this edpm reads version {SNAPSHOT_VERSION}); \
+                     run the scenario again to write version {SNAPSHOT_VERSION} snapshots",
+                    path.display()
+                );
+            }
+        }
         let (s, _): (Snapshot, usize) = bincode::serde::decode_from_slice(&bytes, config())
             .with_context(|| format!("{}: not an edpm snapshot", path.display()))?;
         if s.version != SNAPSHOT_VERSION {

@@ -35,12 +35,13 @@ pub fn compare_runs(
         "T_m2_s2",
         "T_rot_m2_s2",
         "sonine_a2",
+        "sonine_a2_cell",
         "anisotropy",
     ]);
     let mut md = String::from(
         "| run | mean solids fraction | std/mean | counting noise | excess std/mean | \
-         particles in clusters | wall/core solids | T (m²/s²) | T_rot (m²/s²) | a2 | T_h/T_v |\n\
-         |---|---|---|---|---|---|---|---|---|---|---|\n",
+         particles in clusters | wall/core solids | T (m²/s²) | T_rot (m²/s²) | a2 pooled | a2 per cell | T_h/T_v |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|---|\n",
     );
     for (k, (dir, s)) in runs.iter().enumerate() {
         let h = &s.heterogeneity;
@@ -58,10 +59,11 @@ pub fn compare_runs(
             v.temperature,
             v.temperature_rotational,
             v.sonine_a2,
+            v.sonine_a2_cell_normalised,
             anisotropy,
         ]);
         md.push_str(&format!(
-            "| {} | {:.4} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.4} | {:.4} | {:.3} | {:.3} |\n",
+            "| {} | {:.4} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.4} | {:.4} | {:.3} | {:.3} | {:.3} |\n",
             name(dir),
             h.mean_solids_fraction,
             h.std_over_mean,
@@ -72,6 +74,7 @@ pub fn compare_runs(
             v.temperature,
             v.temperature_rotational,
             v.sonine_a2,
+            v.sonine_a2_cell_normalised,
             anisotropy
         ));
     }

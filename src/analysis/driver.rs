@@ -19,7 +19,9 @@ use super::grid::{
     cell_centre, cell_coords, cell_sums, cell_volume, grid_for_cell_size, single_cell_grid,
     solids_fraction,
 };
-use super::ktgf::{KtgfSample, KtgfSettings, ktgf_samples, sauter_diameter};
+use super::ktgf::{
+    KineticTheory, KtgfSample, KtgfSettings, effective_restitution, ktgf_samples, sauter_diameter,
+};
 use super::profiles::{
     AXIS_NAMES, FieldAverages, Orientation, has_side_walls, is_wall_cell, layer_means, orientation,
     pressure_bottom_top, vertical_flux, width_profile,
@@ -71,7 +73,8 @@ pub const DEFAULT_CELL_DIAMETERS: f64 = 5.0;
 /// Largest number of analysis cells per grid.
 pub const MAX_CELLS: usize = 10_000_000;
 
-/// Width of the solids-fraction bins of `ktgf_binned.csv`.
+/// Width of the packing-fraction bins of `ktgf_binned.csv` (50 bins
+/// cover 0..1).
 pub const KTGF_BIN_WIDTH: f64 = 0.02;
 
 /// Default cluster threshold: cells with a solids fraction above
@@ -100,15 +103,17 @@ pub const FIGURES: &[FigureSpec] = &[
         name: "velocity_distribution.png",
         data: "velocity_distribution.csv",
         x: "c_over_sigma",
-        y: &["f_x", "f_y", "f_z", "gaussian"],
-        what: "f(C_i/σ_i) per component against the unit Gaussian",
+        y: &[
+            "f_x", "f_y", "f_z", "f_x_cell", "f_y_cell", "f_z_cell", "gaussian",
+        ],
+        what: "pooled f(C_i/σ_i) and per-cell f(C_i/√T_c) vs the Gaussian",
     },
     FigureSpec {
         name: "speed_distribution.png",
         data: "speed_distribution.csv",
         x: "c_over_sqrt_T",
-        y: &["f", "maxwellian"],
-        what: "f(|C|/√T) against the Maxwellian speed distribution",
+        y: &["f", "f_cell", "maxwellian"],
+        what: "pooled f(|C|/√T) and per-cell f(|C|/√T_c) vs Maxwell",
     },
     FigureSpec {
         name: "temperature_timeseries.png",
@@ -156,19 +161,19 @@ pub const FIGURES: &[FigureSpec] = &[
         name: "ktgf_pressure.png",
         data: "ktgf_binned.csv",
         x: "solids_fraction",
-        y: &["pc_measured_Pa", "pc_ktgf_Pa", "pc_ktgf_cs_Pa"],
-        what: "measured collisional pressure against KTGF (scaled plots: ratio columns)",
+        y: &["pc_measured_Pa", "pc_ktgf_Pa", "pc_ktgf_ma_Pa"],
+        what: "collisional pressure vs KTGF (cells without TC/guard)",
     },
     FigureSpec {
         name: "ktgf_dissipation.png",
         data: "ktgf_binned.csv",
         x: "solids_fraction",
         y: &[
-            "gamma_measured_W_m3",
-            "gamma_ktgf_W_m3",
-            "gamma_ktgf_cs_W_m3",
+            "gamma_n_measured_W_m3",
+            "gamma_n_ktgf_W_m3",
+            "gamma_n_ktgf_ma_W_m3",
         ],
-        what: "measured dissipation rate against KTGF",
+        what: "normal dissipation vs KTGF (cells without TC/guard)",
     },
     FigureSpec {
         name: "segregation.png",
@@ -242,6 +247,19 @@ pub struct Heterogeneity {
     pub wall_to_core_ratio: Option<f64>,
 }
 
+/// Velocity statistics on the primary grid without the cells that the TC
+/// model or the collapse guard affected.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct UnaffectedVelocity {
+    /// Cell-snapshot samples (of those meeting `min_per_cell`) left out
+    /// because a particle of the cell lay in a tally cell where TC or the
+    /// guard made a pair or wall collision elastic during the interval
+    /// before the snapshot, and the particle samples they held.
+    pub cell_samples_excluded: u64,
+    pub particle_samples_excluded: u64,
+    pub stats: VelocityStats,
+}
+
 /// Time-averaged gas pressure drop.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct PressureDropSummary {
@@ -260,25 +278,55 @@ pub struct EnergySummary {
     pub percent_of_total: EnergyBudget,
 }
 
-/// Measured against KTGF over all samples: ratios of sums.
-#[derive(Clone, Debug, PartialEq, Serialize)]
-pub struct KtgfSummary {
-    pub material: u16,
-    pub e_n: f64,
-    /// Particle diameter of the dissipation rate (Sauter mean, m).
-    pub diameter: f64,
-    pub tally_grid: GridInfo,
+/// Measured against kinetic theory over a set of samples: ratios of sums.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct KtgfRatios {
     pub samples: usize,
     pub collisions: u64,
     pub mean_solids_fraction: f64,
-    /// Σ p_c measured / Σ p_c KTGF (Table 5 g0 and Carnahan–Starling g0).
-    pub pc_ratio_table5: f64,
-    pub pc_ratio_cs: f64,
-    /// Σ kinetic pressure measured / Σ ε_s ρ_s T (1 by construction, up to
-    /// the averaging of the two snapshots).
-    pub pk_ratio: f64,
-    pub gamma_ratio_table5: f64,
-    pub gamma_ratio_cs: f64,
+    /// Mean of the closures' packing fraction (`ε_s`, or `ν` in planar runs).
+    pub mean_packing_fraction: f64,
+    /// Σ p_c measured / Σ p_c KTGF, with the reference g0
+    /// (Carnahan–Starling or Henderson) and with Ma–Ahmadi (3D only).
+    pub pc_ratio: f64,
+    pub pc_ratio_ma: f64,
+    /// Σ γ_n measured / Σ γ_n KTGF: normal dissipation against the
+    /// normal-only theory, with both g0.
+    pub gamma_n_ratio: f64,
+    pub gamma_n_ratio_ma: f64,
+    /// Σ γ_t measured / Σ γ_t rough-sphere average (undefined for smooth
+    /// particles) and the total (normal plus tangential) against the sum of
+    /// both theories.
+    pub gamma_t_ratio: f64,
+    pub gamma_total_ratio: f64,
+    /// The normal restitution that normal-only theory would need to
+    /// dissipate the predicted total (equals `e_n` for smooth particles).
+    pub effective_restitution: f64,
+    /// Energy the altered collisions did not dissipate over what was
+    /// dissipated plus that (0 in the test set, by construction).
+    pub undissipated_fraction: f64,
+}
+
+/// The KTGF test (src/analysis/ktgf.rs).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct KtgfSummary {
+    pub material: u16,
+    /// Nominal collision parameters of the material's pairs.
+    pub e_n: f64,
+    pub beta_0: f64,
+    pub mu: f64,
+    /// `spheres` (3D, Carnahan–Starling g0) or `disks` (planar, Henderson
+    /// g0).
+    pub theory: KineticTheory,
+    /// Particle diameter of the dissipation rate (Sauter mean, m).
+    pub diameter: f64,
+    pub tally_grid: GridInfo,
+    /// The test: samples (cell × interval) in which neither the TC model
+    /// nor the collapse guard altered a collision.
+    pub test: KtgfRatios,
+    /// Every sample, the altered ones included (flagged by
+    /// `altered_collisions > 0` in `ktgf_samples.csv`).
+    pub all: KtgfRatios,
 }
 
 /// Degree of segregation (seed 001 Eq. 49).
@@ -313,6 +361,9 @@ pub struct AnalysisSummary {
     pub primary_grid: GridInfo,
     /// Velocity statistics on the primary grid (local mean subtracted).
     pub velocity: VelocityStats,
+    /// The same without the cells TC or the collapse guard affected
+    /// (`null` without collision tallies).
+    pub velocity_unaffected: Option<UnaffectedVelocity>,
     /// Temperature with the global mean subtracted (one cell) (m²/s²).
     pub temperature_global: f64,
     /// Fractions of samples outside the histogram ranges (x, y, z, speed).
@@ -371,7 +422,8 @@ fn analyse_one(run_dir: &Path, opts: &AnalyseOptions) -> anyhow::Result<Analysis
     let v = &s.velocity;
     eprintln!(
         "edpm: analysed {} of {} snapshots (t = {:.4} to {:.4} s): T = {:.4e} m²/s², \
-         T_rot = {:.4e} m²/s², a2 = {:.4} ± {:.4}, solids fraction std/mean = {:.3}; results in {}",
+         T_rot = {:.4e} m²/s², a2 = {:.4} ± {:.4} (each cell normalised by its own T: {:.4} ± {:.4}), \
+         solids fraction std/mean = {:.3}; results in {}",
         s.snapshots_used,
         s.snapshots_total,
         s.t_first,
@@ -380,6 +432,8 @@ fn analyse_one(run_dir: &Path, opts: &AnalyseOptions) -> anyhow::Result<Analysis
         v.temperature_rotational,
         v.sonine_a2,
         v.sonine_a2_se,
+        v.sonine_a2_cell_normalised,
+        v.sonine_a2_cell_normalised_se,
         s.heterogeneity.std_over_mean,
         s.output_dir
     );
@@ -493,60 +547,128 @@ struct CellPool {
     momentum: DVec3,
 }
 
-/// KTGF settings resolved from the scenario, or why the test is skipped.
+/// Velocity statistics of the primary cells the TC model and the collapse
+/// guard did not affect.
+#[derive(Clone, Debug, Default)]
+struct UnaffectedPass {
+    moments: MomentAccumulator,
+    cell_samples_excluded: u64,
+    particle_samples_excluded: u64,
+}
+
+/// Sums of a set of KTGF samples.
+#[derive(Clone, Copy, Debug, Default)]
+struct KtgfSums {
+    samples: usize,
+    collisions: u64,
+    eps: f64,
+    packing: f64,
+    temperature: f64,
+    pc: [f64; 3],
+    gamma_n: [f64; 3],
+    gamma_t: [f64; 2],
+    undissipated: f64,
+}
+
+impl KtgfSums {
+    fn add(&mut self, s: &KtgfSample) {
+        self.samples += 1;
+        self.collisions += s.collisions;
+        self.eps += s.solids_fraction;
+        self.packing += s.packing_fraction;
+        self.temperature += s.temperature;
+        self.pc[0] += s.pc_measured;
+        self.pc[1] += s.pc_ktgf;
+        self.pc[2] += s.pc_ktgf_ma;
+        self.gamma_n[0] += s.gamma_n_measured;
+        self.gamma_n[1] += s.gamma_n_ktgf;
+        self.gamma_n[2] += s.gamma_n_ktgf_ma;
+        self.gamma_t[0] += s.gamma_t_measured;
+        self.gamma_t[1] += s.gamma_t_theory;
+        self.undissipated += s.undissipated;
+    }
+
+    fn ratios(&self, e_n: f64) -> KtgfRatios {
+        let n = self.samples as f64;
+        let predicted_total = self.gamma_n[1] + self.gamma_t[1];
+        let dissipated = self.gamma_n[0] + self.gamma_t[0];
+        KtgfRatios {
+            samples: self.samples,
+            collisions: self.collisions,
+            mean_solids_fraction: self.eps / n,
+            mean_packing_fraction: self.packing / n,
+            pc_ratio: self.pc[0] / self.pc[1],
+            pc_ratio_ma: self.pc[0] / self.pc[2],
+            gamma_n_ratio: self.gamma_n[0] / self.gamma_n[1],
+            gamma_n_ratio_ma: self.gamma_n[0] / self.gamma_n[2],
+            gamma_t_ratio: self.gamma_t[0] / self.gamma_t[1],
+            gamma_total_ratio: dissipated / predicted_total,
+            effective_restitution: effective_restitution(e_n, self.gamma_t[1] / self.gamma_n[1]),
+            undissipated_fraction: self.undissipated / (dissipated + self.undissipated),
+        }
+    }
+}
+
+/// KTGF settings resolved from the scenario, and the samples so far.
 struct KtgfState {
     settings: KtgfSettings,
     material: u16,
     samples: CsvTable,
-    count: usize,
-    collisions: u64,
-    eps_sum: f64,
-    /// Per solids-fraction bin: samples, collisions, then sums of ε, T,
-    /// pc measured, pc Table 5, pc CS, γ measured, γ Table 5, γ CS, pk
-    /// measured, pk KTGF.
-    bins: Vec<(u64, u64, [f64; 10])>,
+    test: KtgfSums,
+    all: KtgfSums,
+    /// Per packing-fraction bin, test samples only.
+    bins: Vec<KtgfSums>,
 }
 
-const KTGF_SAMPLE_HEADER: [&str; 18] = [
+const KTGF_SAMPLE_HEADER: [&str; 25] = [
     "time_s",
     "cell",
     "solids_fraction",
+    "packing_fraction",
     "T_m2_s2",
+    "T_rot_m2_s2",
     "density_kg_m3",
     "particles",
     "collisions",
-    "g0_table5",
-    "g0_cs",
+    "altered_collisions",
+    "g0",
+    "g0_ma",
+    "pk_Pa",
     "pc_measured_Pa",
     "pc_ktgf_Pa",
-    "pc_ktgf_cs_Pa",
-    "pk_measured_Pa",
-    "pk_ktgf_Pa",
-    "gamma_measured_W_m3",
-    "gamma_ktgf_W_m3",
-    "gamma_ktgf_cs_W_m3",
+    "pc_ktgf_ma_Pa",
+    "gamma_n_measured_W_m3",
+    "gamma_n_ktgf_W_m3",
+    "gamma_n_ktgf_ma_W_m3",
+    "gamma_t_measured_W_m3",
+    "gamma_t_theory_W_m3",
+    "undissipated_W_m3",
+    "gamma_n_ratio",
+    "pc_ratio",
     "interval_s",
 ];
 
-const KTGF_BIN_HEADER: [&str; 18] = [
-    "eps_lo",
-    "eps_hi",
+const KTGF_BIN_HEADER: [&str; 20] = [
+    "packing_lo",
+    "packing_hi",
     "samples",
     "collisions",
     "solids_fraction",
+    "packing_fraction",
     "T_m2_s2",
     "pc_measured_Pa",
     "pc_ktgf_Pa",
-    "pc_ktgf_cs_Pa",
+    "pc_ktgf_ma_Pa",
     "pc_ratio",
-    "pc_ratio_cs",
-    "gamma_measured_W_m3",
-    "gamma_ktgf_W_m3",
-    "gamma_ktgf_cs_W_m3",
-    "gamma_ratio",
-    "gamma_ratio_cs",
-    "pk_measured_Pa",
-    "pk_ktgf_Pa",
+    "pc_ratio_ma",
+    "gamma_n_measured_W_m3",
+    "gamma_n_ktgf_W_m3",
+    "gamma_n_ktgf_ma_W_m3",
+    "gamma_n_ratio",
+    "gamma_n_ratio_ma",
+    "gamma_t_measured_W_m3",
+    "gamma_t_theory_W_m3",
+    "gamma_t_ratio",
 ];
 
 impl KtgfState {
@@ -556,81 +678,72 @@ impl KtgfState {
                 s.time,
                 s.cell as f64,
                 s.solids_fraction,
+                s.packing_fraction,
                 s.temperature,
+                s.temperature_rotational,
                 s.density,
                 s.particles,
                 s.collisions as f64,
-                s.g0_table5,
-                s.g0_cs,
+                s.altered_collisions as f64,
+                s.g0,
+                s.g0_ma,
+                s.pk,
                 s.pc_measured,
                 s.pc_ktgf,
-                s.pc_ktgf_cs,
-                s.pk_measured,
-                s.pk_ktgf,
-                s.gamma_measured,
-                s.gamma_ktgf,
-                s.gamma_ktgf_cs,
+                s.pc_ktgf_ma,
+                s.gamma_n_measured,
+                s.gamma_n_ktgf,
+                s.gamma_n_ktgf_ma,
+                s.gamma_t_measured,
+                s.gamma_t_theory,
+                s.undissipated,
+                s.gamma_n_measured / s.gamma_n_ktgf,
+                s.pc_measured / s.pc_ktgf,
                 interval,
             ]);
-            self.count += 1;
-            self.collisions += s.collisions;
-            self.eps_sum += s.solids_fraction;
-            let k = ((s.solids_fraction / KTGF_BIN_WIDTH).floor().max(0.0) as usize)
-                .min(self.bins.len() - 1);
-            let b = &mut self.bins[k];
-            b.0 += 1;
-            b.1 += s.collisions;
-            let v = [
-                s.solids_fraction,
-                s.temperature,
-                s.pc_measured,
-                s.pc_ktgf,
-                s.pc_ktgf_cs,
-                s.gamma_measured,
-                s.gamma_ktgf,
-                s.gamma_ktgf_cs,
-                s.pk_measured,
-                s.pk_ktgf,
-            ];
-            for (a, x) in b.2.iter_mut().zip(v) {
-                *a += x;
+            self.all.add(s);
+            if s.altered_collisions > 0 {
+                continue;
             }
+            self.test.add(s);
+            let k = ((s.packing_fraction / KTGF_BIN_WIDTH).floor().max(0.0) as usize)
+                .min(self.bins.len() - 1);
+            self.bins[k].add(s);
         }
     }
 
-    fn binned(&self) -> (CsvTable, [f64; 10]) {
+    fn binned(&self) -> CsvTable {
         let mut t = CsvTable::new(&KTGF_BIN_HEADER);
-        let mut total = [0.0; 10];
-        for (k, (n, coll, s)) in self.bins.iter().enumerate() {
-            if *n == 0 {
+        for (k, b) in self.bins.iter().enumerate() {
+            if b.samples == 0 {
                 continue;
             }
-            for (a, x) in total.iter_mut().zip(s) {
-                *a += x;
-            }
-            let m = |i: usize| s[i] / *n as f64;
+            let n = b.samples as f64;
+            let r = b.ratios(self.settings.e_n);
             t.row(&[
                 k as f64 * KTGF_BIN_WIDTH,
                 (k + 1) as f64 * KTGF_BIN_WIDTH,
-                *n as f64,
-                *coll as f64,
-                m(0),
-                m(1),
-                m(2),
-                m(3),
-                m(4),
-                s[2] / s[3],
-                s[2] / s[4],
-                m(5),
-                m(6),
-                m(7),
-                s[5] / s[6],
-                s[5] / s[7],
-                m(8),
-                m(9),
+                n,
+                b.collisions as f64,
+                r.mean_solids_fraction,
+                r.mean_packing_fraction,
+                b.temperature / n,
+                b.pc[0] / n,
+                b.pc[1] / n,
+                b.pc[2] / n,
+                r.pc_ratio,
+                r.pc_ratio_ma,
+                b.gamma_n[0] / n,
+                b.gamma_n[1] / n,
+                b.gamma_n[2] / n,
+                r.gamma_n_ratio,
+                r.gamma_n_ratio_ma,
+                b.gamma_t[0] / n,
+                b.gamma_t[1] / n,
+                r.gamma_t_ratio,
             ]);
         }
-        (t, total)
+        t
     }
 }
 
@@ -668,6 +781,9 @@ struct Pass1<'a> {
     ktgf: Option<Result<KtgfState, String>>,
     scenario: Result<crate::scenario::Scenario, String>,
     global_t: [f64; 2],
+    /// Velocity statistics without TC- or guard-affected cells (runs with
+    /// collision tallies).
+    unaffected: Option<UnaffectedPass>,
     /// The collision tally grid (the KTGF cells).
     tally: Option<TallyGrid>,
     notes: Vec<String>,
@@ -766,6 +882,7 @@ impl<'a> Pass1<'a> {
                 "T_rot_m2_s2",
                 "T_global_m2_s2",
                 "sonine_a2",
+                "sonine_a2_cell",
                 "mean_solids_fraction",
             ]
             .iter()
@@ -795,7 +912,7 @@ impl<'a> Pass1<'a> {
         if planar {
             notes.push(
                 "planar mode: solids fractions are slab fractions (particle volume over cell area × bed depth); \
-                 temperatures use d = 2 and d_rot = 1; the 3D KTGF closures are applied to the slab fraction for reference only"
+                 temperatures use d = 2 and d_rot = 1; the KTGF test uses the hard-disk closures with the area fraction"
                     .to_string(),
             );
         }
@@ -840,6 +957,7 @@ impl<'a> Pass1<'a> {
             ktgf: None,
             scenario,
             global_t: [0.0; 2],
+            unaffected: first.collisions.as_ref().map(|_| UnaffectedPass::default()),
             tally,
             notes,
         })
@@ -869,38 +987,51 @@ impl<'a> Pass1<'a> {
                         "KTGF test skipped: no collision parameters for material {m} in scenario.toml"
                     )),
                     Some(c) => {
-                        if s.collisions.tc > 0.0 {
+                        if c.e_n < 1.0 {
+                            let tc = if s.collisions.tc > 0.0 {
+                                format!("TC model (tc = {} s) and ", s.collisions.tc)
+                            } else {
+                                String::new()
+                            };
                             self.notes.push(format!(
-                                "TC model active (tc = {} s): collisions within tc of a particle's previous one are elastic, \
-                                 so the measured dissipation falls below KTGF where they occur",
-                                s.collisions.tc
+                                "{tc}collapse guard (max_collisions_per_step = {}, i.e. above {:.3e} collisions/s per particle at dt_flow = {} s): \
+                                 cells where they made collisions elastic are flagged (altered_collisions in ktgf_samples.csv) and left out of \
+                                 ktgf_binned.csv and the `test` ratios, and left out of `velocity_unaffected`",
+                                s.collisions.max_collisions_per_step,
+                                s.collisions.max_collisions_per_step as f64 / s.time.dt_flow,
+                                s.time.dt_flow
                             ));
                         }
                         if !c.is_smooth() {
                             self.notes.push(
-                                "rough particles: Table 5 is for smooth spheres; measured dissipation includes rotational energy"
+                                "rough particles: the normal dissipation is compared with normal-only KTGF, the tangential \
+                                 (friction and spin) with the rough-sphere average (gamma_t)"
                                     .to_string(),
                             );
                         }
                         if s.materials.iter().filter(|m| m.density.is_some()).count() > 1 {
                             self.notes.push(format!(
-                                "several particle materials: the KTGF test uses e_n of the pair ({m}, {m}), the first particle's material"
+                                "several particle materials: the KTGF test uses the parameters of the pair ({m}, {m}), the first particle's material"
                             ));
                         }
                         Ok(KtgfState {
                             settings: KtgfSettings {
                                 d: self.d,
                                 e_n: c.e_n,
+                                beta_0: c.beta_0,
+                                mu: c.mu,
                                 diameter: sauter_diameter(&snap.particles),
                                 min_per_cell: self.opts.min_per_cell,
                                 min_collisions: self.opts.min_collisions,
                             },
                             material: m,
                             samples: CsvTable::new(&KTGF_SAMPLE_HEADER),
-                            count: 0,
-                            collisions: 0,
-                            eps_sum: 0.0,
-                            bins: vec![(0, 0, [0.0; 10]); 33],
+                            test: KtgfSums::default(),
+                            all: KtgfSums::default(),
+                            bins: vec![
+                                KtgfSums::default();
+                                (1.0 / KTGF_BIN_WIDTH).round() as usize
+                            ],
                         })
                     }
                 },
@@ -919,7 +1050,7 @@ impl<'a> Pass1<'a> {
         let mut primary_fl = None;
         for (k, g) in self.grids.iter_mut().enumerate() {
             let fl = local_fluctuations(ps, &g.grid, self.opts.min_per_cell);
-            g.moments.add_all(&fl);
+            g.moments.add_all(&fl, d);
             g.cells_used += fl.cells_used as u64;
             g.cells_skipped += fl.cells_skipped as u64;
             g.particles_skipped += fl.particles_skipped as u64;
@@ -937,11 +1068,11 @@ impl<'a> Pass1<'a> {
         let grid = self.primary().clone();
         // Per-snapshot temperatures.
         let mut snap_moments = MomentAccumulator::default();
-        snap_moments.add_all(&fl);
+        snap_moments.add_all(&fl, d);
         let st = snap_moments.stats(d, d_rot);
         let global = local_fluctuations(ps, &single_cell_grid(self.lo, self.hi), 1);
         let (gm, gmc2) = global.samples.iter().fold((0.0, 0.0), |(m, e), f| {
-            (m + f.mass, e + f.mass * f.c.length_squared())
+            (m + f.mass, e + f.unbias() * f.mass * f.c.length_squared())
         });
         let t_global = gmc2 / (d as f64 * gm);
         self.global_t[0] += gmc2;
@@ -949,11 +1080,30 @@ impl<'a> Pass1<'a> {
         // Cell pools.
         for f in &fl.samples {
             let c = &mut self.cells[f.cell];
+            let unbias = f.unbias();
             c.mass_used += f.mass;
             for a in 0..3 {
-                c.mass_c2[a] += f.mass * f.c[a] * f.c[a];
+                c.mass_c2[a] += unbias * f.mass * f.c[a] * f.c[a];
             }
-            c.inertia_w2 += f.inertia * f.w.length_squared();
+            c.inertia_w2 += unbias * f.inertia * f.w.length_squared();
+        }
+        // The same statistics without the primary cells holding a particle
+        // in a tally cell where TC or the guard altered a collision during
+        // the interval before this snapshot.
+        if let (Some(u), Some(tally)) = (self.unaffected.as_mut(), snap.collisions.as_ref()) {
+            let mut affected = vec![false; grid.cells()];
+            for f in &fl.samples {
+                affected[f.cell] |= tally.altered(tally.grid.cell_of(ps[f.index].pos));
+            }
+            u.cell_samples_excluded += affected.iter().filter(|&&a| a).count() as u64;
+            let kept: Vec<_> = fl
+                .samples
+                .iter()
+                .filter(|f| !affected[f.cell])
+                .copied()
+                .collect();
+            u.particle_samples_excluded += (fl.samples.len() - kept.len()) as u64;
+            u.moments.add_samples(&kept, d);
         }
         let (sums, _) = cell_sums(ps, &grid);
         let min = self.opts.min_per_cell;
@@ -991,6 +1141,7 @@ impl<'a> Pass1<'a> {
             st.temperature_rotational,
             t_global,
             st.sonine_a2,
+            st.sonine_a2_cell_normalised,
             mean_eps,
         ]);
         self.series.row(&row);
@@ -1125,7 +1276,7 @@ pub fn analyse_run(run_dir: &Path, opts: &AnalyseOptions) -> anyhow::Result<Anal
             continue;
         }
         for f in &local_fluctuations(&snap.particles, &grid, opts.min_per_cell).samples {
-            hist.add(f.c);
+            hist.add(f);
         }
         particle_volume_sum += snap
             .particles
@@ -1154,13 +1305,14 @@ pub fn analyse_run(run_dir: &Path, opts: &AnalyseOptions) -> anyhow::Result<Anal
     // Velocity distributions.
     let mut cols = vec!["c_over_sigma".to_string()];
     cols.extend(axes.iter().map(|a| format!("f_{a}")));
+    cols.extend(axes.iter().map(|a| format!("f_{a}_cell")));
     cols.push("gaussian".to_string());
     let mut t = header(&cols.iter().map(String::as_str).collect::<Vec<_>>());
     for row in hist.component_rows() {
         t.row(&row);
     }
     write("velocity_distribution.csv", &t)?;
-    let mut t = header(&["c_over_sqrt_T", "f", "maxwellian"]);
+    let mut t = header(&["c_over_sqrt_T", "f", "f_cell", "maxwellian"]);
     for row in hist.speed_rows() {
         t.row(&row);
     }
@@ -1183,11 +1335,19 @@ pub fn analyse_run(run_dir: &Path, opts: &AnalyseOptions) -> anyhow::Result<Anal
     .collect();
     cols.extend(axes.iter().map(|a| format!("T_{a}_m2_s2")));
     cols.extend(
-        ["T_m2_s2", "T_rot_m2_s2", "sonine_a2", "sonine_a2_se"]
-            .iter()
-            .map(|s| s.to_string()),
+        [
+            "T_m2_s2",
+            "T_rot_m2_s2",
+            "sonine_a2",
+            "sonine_a2_se",
+            "sonine_a2_cell",
+            "sonine_a2_cell_se",
+        ]
+        .iter()
+        .map(|s| s.to_string()),
     );
     cols.extend(axes.iter().map(|a| format!("kurtosis_{a}")));
+    cols.extend(axes.iter().map(|a| format!("kurtosis_{a}_cell")));
     cols.push("solids_fraction_std_over_mean".to_string());
     let mut t = header(&cols.iter().map(String::as_str).collect::<Vec<_>>());
     for r in &results {
@@ -1208,8 +1368,11 @@ pub fn analyse_run(run_dir: &Path, opts: &AnalyseOptions) -> anyhow::Result<Anal
             r.stats.temperature_rotational,
             r.stats.sonine_a2,
             r.stats.sonine_a2_se,
+            r.stats.sonine_a2_cell_normalised,
+            r.stats.sonine_a2_cell_normalised_se,
         ]);
         row.extend(&r.stats.kurtosis);
+        row.extend(&r.stats.kurtosis_cell_normalised);
         row.push(r.solids_fraction_std_over_mean);
         t.row(&row);
     }
@@ -1350,12 +1513,17 @@ pub fn analyse_run(run_dir: &Path, opts: &AnalyseOptions) -> anyhow::Result<Anal
     let ktgf = match p.ktgf.take() {
         Some(Ok(k)) => {
             write("ktgf_samples.csv", &k.samples)?;
-            let (binned, s) = k.binned();
-            write("ktgf_binned.csv", &binned)?;
-            if k.count == 0 {
+            write("ktgf_binned.csv", &k.binned())?;
+            if k.all.samples == 0 {
                 p.notes.push(format!(
                     "KTGF test: no tally cell had {} particles and {} collisions in an interval (see --min-per-cell, --min-collisions)",
                     opts.min_per_cell, opts.min_collisions
+                ));
+            } else if k.test.samples == 0 {
+                p.notes.push(format!(
+                    "KTGF test: all {} samples had collisions made elastic by the TC model or the collapse guard; \
+                     only the `all` ratios are defined",
+                    k.all.samples
                 ));
             }
             let tally = p.tally.as_ref().map_or_else(
@@ -1368,19 +1536,17 @@ pub fn analyse_run(run_dir: &Path, opts: &AnalyseOptions) -> anyhow::Result<Anal
                     )
                 },
             );
+            let e_n = k.settings.e_n;
             Some(KtgfSummary {
                 material: k.material,
-                e_n: k.settings.e_n,
+                e_n,
+                beta_0: k.settings.beta_0,
+                mu: k.settings.mu,
+                theory: KineticTheory::for_dimensions(d),
                 diameter: k.settings.diameter,
                 tally_grid: tally,
-                samples: k.count,
-                collisions: k.collisions,
-                mean_solids_fraction: k.eps_sum / k.count as f64,
-                pc_ratio_table5: s[2] / s[3],
-                pc_ratio_cs: s[2] / s[4],
-                pk_ratio: s[8] / s[9],
-                gamma_ratio_table5: s[5] / s[6],
-                gamma_ratio_cs: s[5] / s[7],
+                test: k.test.ratios(e_n),
+                all: k.all.ratios(e_n),
             })
         }
         Some(Err(note)) => {
@@ -1454,6 +1620,11 @@ pub fn analyse_run(run_dir: &Path, opts: &AnalyseOptions) -> anyhow::Result<Anal
         min_per_cell: opts.min_per_cell,
         primary_grid: results[0].grid.clone(),
         velocity: stats,
+        velocity_unaffected: p.unaffected.as_ref().map(|u| UnaffectedVelocity {
+            cell_samples_excluded: u.cell_samples_excluded,
+            particle_samples_excluded: u.particle_samples_excluded,
+            stats: u.moments.stats(d, d_rot),
+        }),
         temperature_global: p.global_t[0] / (d as f64 * p.global_t[1]),
         histogram_outside_fraction: hist.outside.map(|n| n as f64 / total),
         cell_size_dependence: results,

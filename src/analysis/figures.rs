@@ -111,9 +111,13 @@ fn draw(out_dir: &Path, title: &str, spec: &FigureSpec, table: &Table) -> anyhow
             let series: Vec<Series> = data
                 .iter()
                 .map(|&(i, c)| {
-                    let name = match c.strip_prefix("f_") {
-                        Some(axis) => format!("f(C_{axis}/σ_{axis})"),
-                        None => "f(|C|/√T)".to_string(),
+                    let name = match (c, c.strip_prefix("f_")) {
+                        ("f_cell", _) => "f(|C|/√T_c), own cell's T".to_string(),
+                        (_, Some(axis)) => match axis.strip_suffix("_cell") {
+                            Some(axis) => format!("f(C_{axis}/√T_c), own cell's T"),
+                            None => format!("f(C_{axis}/σ_{axis})"),
+                        },
+                        _ => "f(|C|/√T)".to_string(),
                     };
                     table.series(x, i, &name)
                 })
@@ -123,9 +127,9 @@ fn draw(out_dir: &Path, title: &str, spec: &FigureSpec, table: &Table) -> anyhow
                 .map(|&(i, c)| table.series(x, i, c))
                 .unwrap_or_default();
             let x_label = if spec.x == "c_over_sigma" {
-                "C_i / σ_i"
+                "C_i / σ_i or C_i / √T_c"
             } else {
-                "|C| / √T"
+                "|C| / √T or |C| / √T_c"
             };
             plot::distribution_plot(&path, &heading, x_label, &series, &reference, true)
         }
@@ -162,10 +166,10 @@ fn draw(out_dir: &Path, title: &str, spec: &FigureSpec, table: &Table) -> anyhow
                 .iter()
                 .map(|&(i, c)| {
                     Series::new(
-                        if c.ends_with("cs_Pa") || c.ends_with("cs_W_m3") {
-                            "KTGF, Carnahan–Starling g0"
+                        if c.ends_with("ma_Pa") || c.ends_with("ma_W_m3") {
+                            "KTGF, Ma–Ahmadi g0 (Table 5)"
                         } else {
-                            "KTGF, Table 5 g0"
+                            "KTGF, Carnahan–Starling (3D) or Henderson (2D) g0"
                         },
                         table
                             .rows

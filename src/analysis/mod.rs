@@ -23,10 +23,19 @@
 //!   of a cell is mass-weighted; fluctuation velocities are relative to it
 //!   ([`velocity`]). Cells with fewer than `--min-per-cell` particles are
 //!   skipped in the velocity statistics (counted in the outputs).
+//! - Temperatures are corrected for the degree of freedom each cell's own
+//!   mean removes: every `m C²` of a cell of `N` particles counts
+//!   `N/(N − 1)` times ([`velocity`]).
 //! - Local fields are time averages over the used snapshots: solids
 //!   fraction and flux as plain means per snapshot, temperatures pooled
 //!   (`Σ_t Σ m C² / (d Σ_t Σ m)` over the snapshots in which the cell met
 //!   `--min-per-cell`).
+//! - Collisions the TC model or the collapse guard made elastic: the
+//!   snapshots' collision tallies count them per cell. The KTGF test flags
+//!   the samples (cell × interval) with any and leaves them out of its
+//!   binned table and `test` ratios (the `all` ratios keep them); the
+//!   velocity statistics are repeated without the primary cells holding a
+//!   particle in such a tally cell (`velocity_unaffected`).
 //!
 //! # Definitions (with the seed equations)
 //!
@@ -40,8 +49,14 @@
 //!   the unit Gaussian, `f(|C|/√T)` against the Maxwellian speed density
 //!   (2D form in planar mode), kurtosis `⟨C_i⁴⟩/⟨C_i²⟩²` (3 for a Gaussian),
 //!   Sonine coefficient `a2 = (d/(d+2)) ⟨C⁴⟩/⟨C²⟩² − 1`, anisotropy `T_a/T_b`.
-//! - KTGF closures (seed 000 Table 5) against measured collisional
-//!   pressure and dissipation rate: [`ktgf`].
+//!   Each twice: pooled over cells (one global σ, so cells of different
+//!   temperatures make a2 and the kurtosis positive) and with each
+//!   fluctuation normalised by its own cell's temperature (`_cell`
+//!   columns, `*_cell_normalised` fields; [`velocity`]).
+//! - Kinetic theory against the collision tally: hard spheres in 3D, hard
+//!   disks in planar runs; collisional pressure, normal dissipation
+//!   (normal-only theory), tangential dissipation (rough-sphere average):
+//!   [`ktgf`].
 //! - Energy budget (seed 002 Table 3): [`energy`].
 //! - Degree of segregation (seed 001 Eq. 49): [`segregation`].
 //! - Profiles, hold-up, pressure drop: [`profiles`]; heterogeneity and the
@@ -52,17 +67,17 @@
 //! | file | columns |
 //! |---|---|
 //! | `analysis.json` | [`AnalysisSummary`] |
-//! | `velocity_distribution.csv` | `c_over_sigma, f_x, f_y[, f_z], gaussian` |
-//! | `speed_distribution.csv` | `c_over_sqrt_T, f, maxwellian` |
-//! | `cell_size_dependence.csv` | per grid: `cell_size_m, h_x_m, h_y_m, h_z_m, cells, cell_samples_used, cell_samples_skipped, particles_per_used_cell, samples, T_x_m2_s2, T_y_m2_s2[, T_z_m2_s2], T_m2_s2, T_rot_m2_s2, sonine_a2, sonine_a2_se, kurtosis_x, kurtosis_y[, kurtosis_z], solids_fraction_std_over_mean` |
-//! | `temperature_timeseries.csv` | per snapshot: `time_s, particles, particles_used, cells_used, cells_skipped, T_x_m2_s2, T_y_m2_s2[, T_z_m2_s2], T_m2_s2, T_rot_m2_s2, T_global_m2_s2, sonine_a2, mean_solids_fraction` |
+//! | `velocity_distribution.csv` | `c_over_sigma, f_x, f_y[, f_z], f_x_cell, f_y_cell[, f_z_cell], gaussian` (`_cell`: `C_i/√T_c` on the same axis) |
+//! | `speed_distribution.csv` | `c_over_sqrt_T, f, f_cell, maxwellian` |
+//! | `cell_size_dependence.csv` | per grid: `cell_size_m, h_x_m, h_y_m, h_z_m, cells, cell_samples_used, cell_samples_skipped, particles_per_used_cell, samples, T_x_m2_s2, T_y_m2_s2[, T_z_m2_s2], T_m2_s2, T_rot_m2_s2, sonine_a2, sonine_a2_se, sonine_a2_cell, sonine_a2_cell_se, kurtosis_x, kurtosis_y[, kurtosis_z], kurtosis_x_cell, kurtosis_y_cell[, kurtosis_z_cell], solids_fraction_std_over_mean` |
+//! | `temperature_timeseries.csv` | per snapshot: `time_s, particles, particles_used, cells_used, cells_skipped, T_x_m2_s2, T_y_m2_s2[, T_z_m2_s2], T_m2_s2, T_rot_m2_s2, T_global_m2_s2, sonine_a2, sonine_a2_cell, mean_solids_fraction` |
 //! | `cell_fields.csv` | per primary cell: `cell, i, j, k, x_m, y_m, z_m, snapshots_used, mean_particles, solids_fraction, solids_flux_kg_m2_s, velocity_{x,y,z}_m_s, T_x_m2_s2, T_y_m2_s2[, T_z_m2_s2], T_m2_s2, T_rot_m2_s2` |
 //! | `profiles_width.csv` | `height_m, layer_height_m, width_m, solids_fraction, solids_flux_kg_m2_s` |
 //! | `profile_height.csv` | `height_m, solids_fraction, solids_flux_kg_m2_s` |
 //! | `pressure_drop.csv` (gas runs) | `time_s, pressure_bottom_Pa, pressure_top_Pa, pressure_drop_Pa, bed_weight_per_area_Pa` |
 //! | `energy_budget.csv` | `time_s, potential_J, kinetic_J, convective_J, granular_J, rotational_J, rotational_granular_J, total_J` |
-//! | `ktgf_samples.csv` | per tally cell and interval: `time_s, cell, solids_fraction, T_m2_s2, density_kg_m3, particles, collisions, g0_table5, g0_cs, pc_measured_Pa, pc_ktgf_Pa, pc_ktgf_cs_Pa, pk_measured_Pa, pk_ktgf_Pa, gamma_measured_W_m3, gamma_ktgf_W_m3, gamma_ktgf_cs_W_m3, interval_s` |
-//! | `ktgf_binned.csv` | per solids-fraction bin of 0.02: means and ratios of sums |
+//! | `ktgf_samples.csv` | per tally cell and interval: `time_s, cell, solids_fraction, packing_fraction, T_m2_s2, T_rot_m2_s2, density_kg_m3, particles, collisions, altered_collisions, g0, g0_ma, pk_Pa, pc_measured_Pa, pc_ktgf_Pa, pc_ktgf_ma_Pa, gamma_n_measured_W_m3, gamma_n_ktgf_W_m3, gamma_n_ktgf_ma_W_m3, gamma_t_measured_W_m3, gamma_t_theory_W_m3, undissipated_W_m3, gamma_n_ratio, pc_ratio, interval_s` (`g0`: Carnahan–Starling, or Henderson in planar runs; `_ma`: Ma–Ahmadi, 3D only, NaN in planar runs) |
+//! | `ktgf_binned.csv` | per packing-fraction bin of 0.02, samples without TC/guard alterations only: means and ratios of sums |
 //! | `segregation.csv` (bidisperse) | `time_s, n_small, n_large, h_small_m, h_large_m, x_large, S, S_max, segregation_index` |
 //!
 //! Values that are undefined (an empty cell's temperature) are written as
