@@ -483,6 +483,13 @@ impl LogReader {
         })
     }
 
+    /// Bound on the particle ids of this log: every id is an initial
+    /// particle's or was given by an insertion record, so it is below the
+    /// initial count plus the number of records the file can hold.
+    pub fn id_limit(&self) -> u64 {
+        self.header.initial.len() as u64 + self.len / RECORD_BYTES as u64
+    }
+
     /// Hands a block's record buffer back for reuse by the next block
     /// (saves a large allocation per block when replaying).
     pub fn recycle(&mut self, records: Vec<LogRecord>) {
@@ -646,17 +653,22 @@ pub struct Replay {
     pub step: u64,
     /// Absolute time of the last record applied (s).
     pub time: f64,
+    /// Ids must stay below this (see [`LogReader::id_limit`]): a damaged or
+    /// forged id cannot make the id-indexed table allocate without bound.
+    id_limit: u64,
 }
 
 impl Replay {
-    /// The state at time 0 from the header.
-    pub fn start(header: &LogHeader) -> Replay {
+    /// The state at time 0 from the header; particle ids must be below
+    /// `id_limit` ([`LogReader::id_limit`] for a log being read).
+    pub fn start(header: &LogHeader, id_limit: u64) -> Result<Replay, String> {
         let mut replay = Replay {
             particles: Vec::new(),
             count: 0,
             origin: 0.0,
             step: 0,
             time: 0.0,
+            id_limit,
         };
         for (id, p) in &header.initial {
             let state = State {
@@ -672,9 +684,9 @@ impl Replay {
                     state,
                     clock: 0.0,
                 },
-            );
+            )?;
         }
-        replay
+        Ok(replay)
     }
 
     /// Number of particles present.
@@ -699,7 +711,13 @@ impl Replay {
             .filter_map(|(id, p)| p.as_ref().map(|p| (id as u64, p)))
     }
 
-    fn insert(&mut self, id: u64, p: ReplayParticle) {
+    fn insert(&mut self, id: u64, p: ReplayParticle) -> Result<(), String> {
+        if id >= self.id_limit {
+            return Err(format!(
+                "particle id {id} is beyond the {} ids this log can hold (initial particles plus one per record)",
+                self.id_limit
+            ));
+        }
         let k = id as usize;
         if k >= self.particles.len() {
             self.particles.resize(k + 1, None);
@@ -707,6 +725,7 @@ impl Replay {
         if self.particles[k].replace(p).is_none() {
             self.count += 1;
         }
+        Ok(())
     }
 
     /// Applies one record, exactly as the engine changed its state.
@@ -741,7 +760,8 @@ impl Replay {
                     state: array_state(&r.state_a),
                     clock: r.clock,
                 };
-                self.insert(r.a, p);
+                self.insert(r.a, p)
+                    .map_err(|e| format!("record at time {}: {e}", r.time))?;
             }
             k if k == RecordKind::Remove as u32 => {
                 match self.particles.get_mut(r.a as usize).and_then(Option::take) {
@@ -770,7 +790,11 @@ impl Replay {
     }
 
     /// Replaces the state by a checkpoint's.
-    pub fn load_checkpoint(&mut self, h: &CheckpointHeader, particles: &[LogParticle]) {
+    pub fn load_checkpoint(
+        &mut self,
+        h: &CheckpointHeader,
+        particles: &[LogParticle],
+    ) -> Result<(), String> {
         self.particles.clear();
         self.count = 0;
         for p in particles {
@@ -780,11 +804,13 @@ impl Replay {
                 state: array_state(&p.state),
                 clock: h.clock,
             };
-            self.insert(p.id, rp);
+            self.insert(p.id, rp)
+                .map_err(|e| format!("checkpoint at time {}: {e}", h.time))?;
         }
         self.origin = h.time - h.clock;
         self.step = h.step;
         self.time = h.time;
+        Ok(())
     }
 
     /// First difference from a checkpoint, or `None` when bit-identical.
