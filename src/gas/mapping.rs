@@ -657,8 +657,10 @@ mod tests {
 
     /// Regression: a particle far smaller than the round-off of its
     /// position (1e-20 m at x = 0.3 m) sitting on the upper wall mapped to
-    /// cell n (out of bounds) with NaN weights. It must map to the last
-    /// cell with weight 1, on walled and periodic axes, for cells and faces.
+    /// cell n (out of bounds) with NaN weights. Its weights must be valid
+    /// indices with finite weights summing to 1, on walled and periodic
+    /// axes, for cells and faces (at the origin, where such a particle is
+    /// resolved, it may straddle a face).
     #[test]
     fn unresolvable_tiny_particle_maps_to_one_valid_cell() {
         for periodic in [[false; 3], [true; 3]] {
@@ -675,13 +677,19 @@ mod tests {
                 DVec3::ZERO,
             ] {
                 let side = EQUAL_VOLUME_CUBE * 1e-20;
+                let valid = |w: &[(usize, f64)], len: usize| {
+                    let sum: f64 = w.iter().map(|e| e.1).sum();
+                    w.iter().all(|&(i, x)| i < len && x.is_finite())
+                        && (w.is_empty() || (sum - 1.0).abs() < 1e-12)
+                };
                 let w = collect(&cell_weights(&g, pos, side));
-                assert_eq!(w.len(), 1, "{pos} {periodic:?}: {w:?}");
-                assert!(w[0].0 < g.cells() && w[0].1 == 1.0, "{w:?}");
+                assert!(!w.is_empty() && valid(&w, g.cells()), "{pos} {periodic:?}: {w:?}");
+                if pos.x == 0.3 {
+                    assert_eq!(w.len(), 1, "{pos} {periodic:?}: {w:?}");
+                }
                 for a in 0..3 {
                     let w = collect(&face_weights(&g, a, pos, side));
-                    let faces = g.faces(a);
-                    assert!(w.iter().all(|&(i, x)| i < faces && x.is_finite()), "{w:?}");
+                    assert!(valid(&w, g.faces(a)), "{pos} {periodic:?} axis {a}: {w:?}");
                 }
             }
         }
