@@ -369,6 +369,32 @@ fn block_header(kind: u32, count: u32, payload: &[u8]) -> anyhow::Result<[u8; BL
     Ok(h)
 }
 
+/// Decodes a header payload with bincode's allocation limit set to a power
+/// of two of at least twice the payload's length. bincode allocates a
+/// string's bytes before reading them, so without a limit a damaged or
+/// forged length prefix aborts the process with an allocation of up to
+/// 2⁶⁴ bytes; with it, the decoder never claims more than the payload can
+/// hold (the limit is a compile-time constant in bincode 2, hence the
+/// steps).
+fn decode_header(payload: &[u8]) -> Result<LogHeader, bincode::error::DecodeError> {
+    fn limited<const N: usize>(payload: &[u8]) -> Result<LogHeader, bincode::error::DecodeError> {
+        let config = bincode::config::standard()
+            .with_little_endian()
+            .with_fixed_int_encoding()
+            .with_limit::<N>();
+        bincode::serde::decode_from_slice(payload, config).map(|(h, _)| h)
+    }
+    match 2 * payload.len() as u64 {
+        n if n <= 1 << 16 => limited::<{ 1 << 16 }>(payload),
+        n if n <= 1 << 20 => limited::<{ 1 << 20 }>(payload),
+        n if n <= 1 << 24 => limited::<{ 1 << 24 }>(payload),
+        n if n <= 1 << 28 => limited::<{ 1 << 28 }>(payload),
+        n if n <= 1 << 30 => limited::<{ 1 << 30 }>(payload),
+        n if n <= 1 << 32 => limited::<{ 1 << 32 }>(payload),
+        _ => limited::<{ 1 << 34 }>(payload),
+    }
+}
+
 /// Why reading a log stopped early or failed.
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum LogError {
@@ -465,8 +491,7 @@ impl LogReader {
                 offset: FILE_HEADER_BYTES as u64,
             });
         }
-        let (header, _): (LogHeader, usize) = bincode::serde::decode_from_slice(&payload, config())
-            .map_err(|_| LogError::Malformed {
+        let header = decode_header(&payload).map_err(|_| LogError::Malformed {
                 file: name.clone(),
                 what: "file header".into(),
                 offset: 0,
@@ -656,6 +681,8 @@ pub struct Replay {
     /// Ids must stay below this (see [`LogReader::id_limit`]): a damaged or
     /// forged id cannot make the id-indexed table allocate without bound.
     id_limit: u64,
+    /// Number of materials in the header: particle materials index them.
+    materials: usize,
 }
 
 impl Replay {
@@ -669,6 +696,7 @@ impl Replay {
             step: 0,
             time: 0.0,
             id_limit,
+            materials: header.densities.len(),
         };
         for (id, p) in &header.initial {
             let state = State {
@@ -712,6 +740,12 @@ impl Replay {
     }
 
     fn insert(&mut self, id: u64, p: ReplayParticle) -> Result<(), String> {
+        if p.material as usize >= self.materials {
+            return Err(format!(
+                "particle {id} has material {}, but the header lists {} materials",
+                p.material, self.materials
+            ));
+        }
         if id >= self.id_limit {
             return Err(format!(
                 "particle id {id} is beyond the {} ids this log can hold (initial particles plus one per record)",
@@ -749,6 +783,12 @@ impl Replay {
             k if k == RecordKind::Pair as u32 => {
                 set(r.a, &r.state_a)?;
                 set(r.b, &r.state_b)?;
+            }
+            k if k == RecordKind::Wall as u32 && r.b >= 6 => {
+                return Err(format!(
+                    "wall record at time {} names face {}; faces are 0..5",
+                    r.time, r.b
+                ));
             }
             k if k == RecordKind::Wall as u32 || k == RecordKind::Wrap as u32 => {
                 set(r.a, &r.state_a)?

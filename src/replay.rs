@@ -362,7 +362,8 @@ impl CollisionStats {
             self.pair
                 .observe(collision::contact_velocity(n, &a, &b), n, loss, r.aux);
         } else if r.kind == RecordKind::Wall as u32 {
-            let Some(pa) = replay.get(r.a) else {
+            // An unknown particle or face is reported by `Replay::apply`.
+            let (Some(pa), true) = (replay.get(r.a), r.b < 6) else {
                 return;
             };
             let a = body(pa);
