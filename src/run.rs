@@ -20,7 +20,8 @@ use crate::collision::ContactParams;
 use crate::domain::AxisBoundary;
 use crate::domain::{Domain, OutletMode};
 use crate::engine::{
-    CollapseReport, Counters, Engine, EngineConfig, InletZone, NeighbourSearch, Record,
+    BadParticle, CollapseReport, Counters, Engine, EngineConfig, InletZone, NeighbourSearch,
+    Record,
 };
 use crate::eventlog::{
     CheckpointHeader, LogHeader, LogRecord, LogWriter, RecordKind, checkpoint_particles,
@@ -618,6 +619,17 @@ fn simulate<Q: EventQueue>(
                 }
                 engine.kick_all(dv);
             }
+            if forces && let Some((bad, k)) = too_fast(&engine, dt) {
+                let what = format!(
+                    "moves {k:.3e} of its diameters in a flow step of {dt:?} s after the kicks, more than the {:.2e} the event clock resolves",
+                    crate::scenario::limits::CLOCK_RESOLUTION_DIAMETERS
+                );
+                anyhow::bail!(
+                    "{}: {}",
+                    s.name,
+                    particle_failure(s, &engine, gas.as_ref(), &bad, &what)
+                );
+            }
             engine.advance(dt);
             if let Some(stall) = engine.stall() {
                 anyhow::bail!("{}: {}", s.name, stall_message(s, stall));
@@ -877,7 +889,7 @@ fn bad_particle_message<Q: EventQueue>(
     s: &Scenario,
     engine: &Engine<Q>,
     gas: Option<&GasRun>,
-    bad: &crate::engine::BadParticle,
+    bad: &BadParticle,
 ) -> String {
     const AXES: [&str; 3] = ["x", "y", "z"];
     let what = match bad.outside_axis {
@@ -887,6 +899,42 @@ fn bad_particle_message<Q: EventQueue>(
             AXES[a], s.domain.lo[a], s.domain.hi[a]
         ),
     };
+    particle_failure(s, engine, gas, bad, &what)
+}
+
+/// The particle that moves the most of its own diameters in a flow step of
+/// `dt`, when that is more than the event clock resolves
+/// ([`crate::scenario::limits::CLOCK_RESOLUTION_DIAMETERS`]), with the
+/// number; checked after the kicks of a flow step, before its events.
+fn too_fast<Q: EventQueue>(engine: &Engine<Q>, dt: f64) -> Option<(BadParticle, f64)> {
+    let limit = crate::scenario::limits::CLOCK_RESOLUTION_DIAMETERS;
+    let mut worst: Option<(BadParticle, f64)> = None;
+    for p in engine.particles() {
+        let k = p.vel.length() * dt / (2.0 * p.radius);
+        if !(k <= limit) && worst.as_ref().is_none_or(|w| !(k <= w.1)) {
+            let bad = BadParticle {
+                id: p.id,
+                position: p.pos,
+                velocity: p.vel,
+                omega: p.omega,
+                radius: p.radius,
+                outside_axis: None,
+            };
+            worst = Some((bad, k));
+        }
+    }
+    worst
+}
+
+/// A particle in trouble (`what`), as an error message with the likely
+/// causes and their values.
+fn particle_failure<Q: EventQueue>(
+    s: &Scenario,
+    engine: &Engine<Q>,
+    gas: Option<&GasRun>,
+    bad: &BadParticle,
+    what: &str,
+) -> String {
     let dt = s.time.dt_flow;
     let mut causes = Vec::new();
     // The fastest finite particle against the event clock's resolution.
