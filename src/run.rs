@@ -561,8 +561,16 @@ fn simulate<Q: EventQueue>(
     }
     let dt_flow = s.time.dt_flow;
     let steps = flow_steps(s.time.t_end, dt_flow);
-    // The last step ends exactly at t_end: (0, dt_flow (1 + 1e-9)].
-    let last_dt = s.time.t_end - (steps - 1) as f64 * dt_flow;
+    // The last step ends exactly at t_end: (0, dt_flow (1 + 1e-9)]. When
+    // t_end is a whole number of steps (to within the 1e-9 of the step
+    // count), the last step is a full one, so that a run and a longer run
+    // of the same scenario agree bit for bit up to its end.
+    let remainder = s.time.t_end - (steps - 1) as f64 * dt_flow;
+    let last_dt = if (remainder - dt_flow).abs() <= 1e-9 * dt_flow {
+        dt_flow
+    } else {
+        remainder
+    };
     let mut log = match &opts.log {
         Some(path) => {
             engine.set_recording(true);
