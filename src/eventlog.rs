@@ -492,10 +492,10 @@ impl LogReader {
             });
         }
         let header = decode_header(&payload).map_err(|_| LogError::Malformed {
-                file: name.clone(),
-                what: "file header".into(),
-                offset: 0,
-            })?;
+            file: name.clone(),
+            what: "file header".into(),
+            offset: 0,
+        })?;
         Ok(LogReader {
             name,
             file,

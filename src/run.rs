@@ -20,8 +20,7 @@ use crate::collision::ContactParams;
 use crate::domain::AxisBoundary;
 use crate::domain::{Domain, OutletMode};
 use crate::engine::{
-    BadParticle, CollapseReport, Counters, Engine, EngineConfig, InletZone, NeighbourSearch,
-    Record,
+    BadParticle, CollapseReport, Counters, Engine, EngineConfig, InletZone, NeighbourSearch, Record,
 };
 use crate::eventlog::{
     CheckpointHeader, LogHeader, LogRecord, LogWriter, RecordKind, checkpoint_particles,

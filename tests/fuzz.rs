@@ -90,13 +90,7 @@ impl Tally {
 
 /// Runs `case` (true: accepted, false: rejected) under `catch_unwind`; on a
 /// panic saves `input` and fails the test naming the case.
-fn guarded(
-    target: &str,
-    k: u64,
-    input: &[u8],
-    tally: &mut Tally,
-    case: impl FnOnce() -> bool,
-) {
+fn guarded(target: &str, k: u64, input: &[u8], tally: &mut Tally, case: impl FnOnce() -> bool) {
     tally.cases += 1;
     match catch_unwind(AssertUnwindSafe(case)) {
         Ok(true) => tally.accepted += 1,
@@ -442,8 +436,8 @@ fn replace_number(line: &str, which: usize, value: &str) -> String {
     let mut spans = Vec::new();
     let mut i = 0;
     while i < b.len() {
-        let starts = b[i].is_ascii_digit()
-            || (b[i] == b'-' && i + 1 < b.len() && b[i + 1].is_ascii_digit());
+        let starts =
+            b[i].is_ascii_digit() || (b[i] == b'-' && i + 1 < b.len() && b[i + 1].is_ascii_digit());
         if starts && (i == 0 || !(b[i - 1].is_ascii_alphanumeric() || b[i - 1] == b'_')) {
             let start = i;
             i += 1;
@@ -562,7 +556,10 @@ fn seed_logs(dir: &Path) -> Vec<Vec<u8>> {
             "box-walls.toml",
             &["particles.0.count=40", "time.t_end=0.004"],
         ),
-        ("hcs-3d.toml", &["particles.0.solids_fraction=0.02", "time.t_end=0.0064"]),
+        (
+            "hcs-3d.toml",
+            &["particles.0.solids_fraction=0.02", "time.t_end=0.0064"],
+        ),
         (
             "riser-circulating.toml",
             &["particles.0.count=40", "time.t_end=0.003"],

@@ -116,7 +116,11 @@ fn gas_cells_too_small_for_the_particles_are_refused() {
     assert!(!e.contains("cube_factor"), "{e}");
     let e = scenario_error(
         "bubbling-bed-jet.toml",
-        &["gas.porosity=porous-cube", "gas.cube_factor=10", "gas.cells=[50, 45, 1]"],
+        &[
+            "gas.porosity=porous-cube",
+            "gas.cube_factor=10",
+            "gas.cells=[50, 45, 1]",
+        ],
     );
     assert_contains(
         &e,
@@ -168,7 +172,10 @@ fn allocations_implied_by_the_values_together_are_estimated() {
             "particles.0.diameter=1e-15",
         ],
     );
-    assert_contains(&e, &["particles[0].diameter: the smallest diameter must be >= 1e294 m"]);
+    assert_contains(
+        &e,
+        &["particles[0].diameter: the smallest diameter must be >= 1e294 m"],
+    );
     // A tally grid of 4096³ cells.
     let e = scenario_error(
         "box-walls.toml",
@@ -312,7 +319,10 @@ fn speeds_the_event_clock_cannot_resolve_are_refused() {
         ],
     );
     let e = scenario_error("box-walls.toml", &["particles.0.velocity=[1e100, 0, 0]"]);
-    assert_contains(&e, &["particles[0].velocity: speeds (the mean velocity) reach 1.000e100 m/s"]);
+    assert_contains(
+        &e,
+        &["particles[0].velocity: speeds (the mean velocity) reach 1.000e100 m/s"],
+    );
 }
 
 /// The stall reproducer of the issue: a dense inelastic box without TC
@@ -359,11 +369,16 @@ fn stalled_event_loop_stops_with_causes_and_remedies() {
 #[test]
 fn extreme_gravity_and_density_are_refused() {
     let e = scenario_error("box-walls.toml", &["domain.gravity=[0, -1e300, 0]"]);
-    assert_contains(&e, &["domain.gravity: free-fall speeds reach 3.130e149 m/s"]);
+    assert_contains(
+        &e,
+        &["domain.gravity: free-fall speeds reach 3.130e149 m/s"],
+    );
     let e = scenario_error("box-walls.toml", &["materials.0.density=1e-300"]);
     assert_contains(
         &e,
-        &["materials[0].density: must be in [0.1, 100000.0] kg/m³ (aerogels are above 0.1, osmium is 22 600), got 1e-300"],
+        &[
+            "materials[0].density: must be in [0.1, 100000.0] kg/m³ (aerogels are above 0.1, osmium is 22 600), got 1e-300",
+        ],
     );
     // Particles lighter than the gas.
     let e = scenario_error(
@@ -372,7 +387,9 @@ fn extreme_gravity_and_density_are_refused() {
     );
     assert_contains(
         &e,
-        &["materials[0].density: the particles of particles[0] (2500.0 kg/m³) are lighter than the gas"],
+        &[
+            "materials[0].density: the particles of particles[0] (2500.0 kg/m³) are lighter than the gas",
+        ],
     );
 }
 
@@ -442,7 +459,12 @@ fn runs_end_exactly_at_t_end() {
     let o = run(
         "scenarios/hcs-3d.toml",
         &dir,
-        &["--t-end", "0.05", "--set", "particles.0.solids_fraction=0.02"],
+        &[
+            "--t-end",
+            "0.05",
+            "--set",
+            "particles.0.solids_fraction=0.02",
+        ],
     );
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let s = summary(&dir);
@@ -536,7 +558,11 @@ fn replay_outside_the_log_is_refused() {
 fn bad_t_end_option_is_refused() {
     let dir = fresh_dir("t-end-option");
     for bad in ["nan", "-1", "0", "inf"] {
-        let o = run("scenarios/box-walls.toml", &dir, &[&format!("--t-end={bad}")]);
+        let o = run(
+            "scenarios/box-walls.toml",
+            &dir,
+            &[&format!("--t-end={bad}")],
+        );
         clean_error(&o, &["--t-end: must be > 0 s and finite, got"]);
     }
 }
@@ -578,9 +604,15 @@ fn damaged_or_unsuitable_checkpoints_are_refused() {
     );
     let scenario = dir.join("restart.toml");
     std::fs::write(&scenario, restart).unwrap();
-    let o = run(scenario.to_str().unwrap(), &dir.join("out"), &["--t-end", "0.001"]);
+    let o = run(
+        scenario.to_str().unwrap(),
+        &dir.join("out"),
+        &["--t-end", "0.001"],
+    );
     clean_error(
         &o,
-        &["restart.toml: initial.checkpoint: holds particles of diameter 2e-12 m; diameters must be >= 4e-8 m"],
+        &[
+            "restart.toml: initial.checkpoint: holds particles of diameter 2e-12 m; diameters must be >= 4e-8 m",
+        ],
     );
 }

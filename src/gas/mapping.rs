@@ -683,7 +683,10 @@ mod tests {
                         && (w.is_empty() || (sum - 1.0).abs() < 1e-12)
                 };
                 let w = collect(&cell_weights(&g, pos, side));
-                assert!(!w.is_empty() && valid(&w, g.cells()), "{pos} {periodic:?}: {w:?}");
+                assert!(
+                    !w.is_empty() && valid(&w, g.cells()),
+                    "{pos} {periodic:?}: {w:?}"
+                );
                 if pos.x == 0.3 {
                     assert_eq!(w.len(), 1, "{pos} {periodic:?}: {w:?}");
                 }
