@@ -918,7 +918,9 @@ fn too_fast<Q: EventQueue>(engine: &Engine<Q>, dt: f64) -> Option<(BadParticle, 
     let mut worst: Option<(BadParticle, f64)> = None;
     for p in engine.particles() {
         let k = p.vel.length() * dt / (2.0 * p.radius);
-        if !(k <= limit) && worst.as_ref().is_none_or(|w| !(k <= w.1)) {
+        // NaN counts as too fast (and as faster than any number).
+        let beyond = k.is_nan() || k > limit;
+        if beyond && worst.as_ref().is_none_or(|w| k.is_nan() || k > w.1) {
             let bad = BadParticle {
                 id: p.id,
                 position: p.pos,

@@ -286,7 +286,7 @@ pub(super) fn check(ctx: &Ctx, s: &Scenario) -> R<Vec<String>> {
 
     // ---- flow steps
     let steps = t_end / dt;
-    if !(steps <= MAX_FLOW_STEPS) {
+    if steps.is_nan() || steps > MAX_FLOW_STEPS {
         return Err(ctx.err(
             "time.dt_flow",
             format!(
