@@ -323,6 +323,49 @@ const NO_PARTNER: u32 = u32::MAX;
 /// Attempts to find a free spot when inserting a particle.
 const INSERT_ATTEMPTS: usize = 200;
 
+/// Stall watchdog: a window is `max(STALL_MIN_WINDOW, STALL_EVENTS_PER_PARTICLE
+/// × particles)` events; the flow step stalls when a window advances the
+/// clock by less than `STALL_MIN_PROGRESS` of the step. A healthy step
+/// needs at most a few windows: the collapse guard caps a particle's
+/// inelastic collisions per step at `max_collisions_per_step` (1000 by
+/// default), so a step of N particles holds of the order of 1000 N events,
+/// 10 windows; a stalled one would need 10⁶ windows or more.
+const STALL_MIN_WINDOW: u64 = 1_000_000;
+const STALL_EVENTS_PER_PARTICLE: u64 = 100;
+const STALL_MIN_PROGRESS: f64 = 1e-6;
+
+/// The event loop stopped because simulated time stopped advancing against
+/// events (see [`Engine::stall`]).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct StallReport {
+    /// Absolute time at which the clock stopped advancing (s).
+    pub time: f64,
+    /// Events in the last watchdog window and how far they moved the clock (s).
+    pub events: u64,
+    pub clock_advance: f64,
+    /// Length of the flow step being processed (s).
+    pub flow_step: f64,
+    /// The particle with the most collisions in this flow step.
+    pub id: u64,
+    pub position: DVec3,
+    pub collisions: u32,
+    /// Particles past `max_collisions_per_step` in this flow step.
+    pub beyond_guard: usize,
+}
+
+/// A particle whose state is not finite, or whose centre has left the
+/// domain (see [`Engine::find_bad_particle`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BadParticle {
+    pub id: u64,
+    pub position: DVec3,
+    pub velocity: DVec3,
+    pub omega: DVec3,
+    pub radius: f64,
+    /// What is wrong: non-finite state, or outside along `axis`.
+    pub outside_axis: Option<usize>,
+}
+
 /// The event-driven engine, generic over the event queue.
 pub struct Engine<Q: EventQueue> {
     domain: Domain,
@@ -375,6 +418,8 @@ pub struct Engine<Q: EventQueue> {
     pub counters: Counters,
     pub records: Vec<Record>,
     pub collapse_reports: Vec<CollapseReport>,
+    /// Set when the watchdog stopped the event loop.
+    stall: Option<StallReport>,
 }
 
 impl<Q: EventQueue> Engine<Q> {
@@ -484,6 +529,7 @@ impl<Q: EventQueue> Engine<Q> {
             counters: Counters::default(),
             records: Vec::new(),
             collapse_reports: Vec::new(),
+            stall: None,
         };
         if engine.config.neighbours == NeighbourSearch::Cells {
             let dims = engine.cells.dims();
@@ -738,17 +784,123 @@ impl<Q: EventQueue> Engine<Q> {
 
     /// Processes every event before `self.time() + dt`, then sets the clock
     /// to that time. Particles are not synchronised.
+    ///
+    /// A watchdog stops early when simulated time stops advancing against
+    /// events (inelastic collapse, or a contact the event loop cannot
+    /// resolve): then [`Engine::stall`] is set, the clock stays where it
+    /// stopped, and this and every later call return at once.
     pub fn advance(&mut self, dt: f64) {
+        if self.stall.is_some() {
+            return;
+        }
         let end = self.now + dt;
         self.ensure_predicted();
+        let window = STALL_MIN_WINDOW.max(STALL_EVENTS_PER_PARTICLE * self.len() as u64);
+        let min_progress = if dt.is_finite() {
+            STALL_MIN_PROGRESS * dt
+        } else {
+            0.0
+        };
+        let (mut events, mut anchor) = (0u64, self.now);
         while let Some((t, i)) = self.queue.peek_min() {
             if t >= end {
                 break;
             }
             self.now = t;
             self.process(i as usize);
+            events += 1;
+            if events == window {
+                if self.now - anchor < min_progress {
+                    self.stall = Some(self.stall_report(events, self.now - anchor, dt));
+                    return;
+                }
+                (events, anchor) = (0, self.now);
+            }
         }
         self.now = end;
+    }
+
+    /// Why the last [`Engine::advance`] stopped early, if it did.
+    pub fn stall(&self) -> Option<&StallReport> {
+        self.stall.as_ref()
+    }
+
+    fn stall_report(&self, events: u64, clock_advance: f64, flow_step: f64) -> StallReport {
+        let worst = (0..self.kin.len())
+            .filter(|&i| self.active[i])
+            .max_by_key(|&i| (self.step_collisions[i], std::cmp::Reverse(i)));
+        let (id, position, collisions) = match worst {
+            Some(i) => (
+                self.id[i],
+                self.domain.wrap(self.kin[i].position_at(self.now)),
+                self.step_collisions[i],
+            ),
+            None => (0, DVec3::ZERO, 0),
+        };
+        StallReport {
+            time: self.time(),
+            events,
+            clock_advance,
+            flow_step,
+            id,
+            position,
+            collisions,
+            beyond_guard: self
+                .step_collisions
+                .iter()
+                .zip(&self.active)
+                .filter(|&(&c, &a)| a && c >= self.config.max_collisions_per_step)
+                .count(),
+        }
+    }
+
+    /// The first particle (in slot order) whose position, velocity or
+    /// angular velocity is not finite, or whose centre lies outside the
+    /// domain at the current time: beyond a wall by more than 1e-6 of its
+    /// radius (its surface may touch the wall, not its centre cross it),
+    /// past the outlet face by as much, or off the mid-plane of a planar
+    /// domain. `None` when every particle is sane.
+    pub fn find_bad_particle(&self) -> Option<BadParticle> {
+        for i in 0..self.kin.len() {
+            if !self.active[i] {
+                continue;
+            }
+            let k = &self.kin[i];
+            let pos = k.position_at(self.now);
+            let bad = |outside_axis| BadParticle {
+                id: self.id[i],
+                position: pos,
+                velocity: k.vel,
+                omega: self.omega[i],
+                radius: k.radius,
+                outside_axis,
+            };
+            if !(pos.is_finite() && k.vel.is_finite() && self.omega[i].is_finite()) {
+                return Some(bad(None));
+            }
+            let tol = 1e-6 * k.radius;
+            for axis in 0..3 {
+                let (lo, hi) = (self.domain.lo[axis], self.domain.hi[axis]);
+                let x = pos[axis];
+                let inside = match self.domain.axes[axis] {
+                    AxisBoundary::Walls => {
+                        let upper = if self.domain.has_wall((2 * axis + 1) as Face) {
+                            hi - k.radius + tol
+                        } else {
+                            hi + tol
+                        };
+                        x >= lo + k.radius - tol && x <= upper
+                    }
+                    // Wrapped into the box when its list or cell is rebuilt.
+                    AxisBoundary::Periodic => true,
+                    AxisBoundary::Frozen => k.vel[axis] == 0.0 && x >= lo && x <= hi,
+                };
+                if !inside {
+                    return Some(bad(Some(axis)));
+                }
+            }
+        }
+        None
     }
 
     /// Processes queue entries until one collision happens before

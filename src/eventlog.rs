@@ -369,6 +369,32 @@ fn block_header(kind: u32, count: u32, payload: &[u8]) -> anyhow::Result<[u8; BL
     Ok(h)
 }
 
+/// Decodes a header payload with bincode's allocation limit set to a power
+/// of two of at least twice the payload's length. bincode allocates a
+/// string's bytes before reading them, so without a limit a damaged or
+/// forged length prefix aborts the process with an allocation of up to
+/// 2⁶⁴ bytes; with it, the decoder never claims more than the payload can
+/// hold (the limit is a compile-time constant in bincode 2, hence the
+/// steps).
+fn decode_header(payload: &[u8]) -> Result<LogHeader, bincode::error::DecodeError> {
+    fn limited<const N: usize>(payload: &[u8]) -> Result<LogHeader, bincode::error::DecodeError> {
+        let config = bincode::config::standard()
+            .with_little_endian()
+            .with_fixed_int_encoding()
+            .with_limit::<N>();
+        bincode::serde::decode_from_slice(payload, config).map(|(h, _)| h)
+    }
+    match 2 * payload.len() as u64 {
+        n if n <= 1 << 16 => limited::<{ 1 << 16 }>(payload),
+        n if n <= 1 << 20 => limited::<{ 1 << 20 }>(payload),
+        n if n <= 1 << 24 => limited::<{ 1 << 24 }>(payload),
+        n if n <= 1 << 28 => limited::<{ 1 << 28 }>(payload),
+        n if n <= 1 << 30 => limited::<{ 1 << 30 }>(payload),
+        n if n <= 1 << 32 => limited::<{ 1 << 32 }>(payload),
+        _ => limited::<{ 1 << 34 }>(payload),
+    }
+}
+
 /// Why reading a log stopped early or failed.
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum LogError {
@@ -465,12 +491,11 @@ impl LogReader {
                 offset: FILE_HEADER_BYTES as u64,
             });
         }
-        let (header, _): (LogHeader, usize) = bincode::serde::decode_from_slice(&payload, config())
-            .map_err(|_| LogError::Malformed {
-                file: name.clone(),
-                what: "file header".into(),
-                offset: 0,
-            })?;
+        let header = decode_header(&payload).map_err(|_| LogError::Malformed {
+            file: name.clone(),
+            what: "file header".into(),
+            offset: 0,
+        })?;
         Ok(LogReader {
             name,
             file,
@@ -481,6 +506,13 @@ impl LogReader {
             truncated_at: None,
             spare: Vec::new(),
         })
+    }
+
+    /// Bound on the particle ids of this log: every id is an initial
+    /// particle's or was given by an insertion record, so it is below the
+    /// initial count plus the number of records the file can hold.
+    pub fn id_limit(&self) -> u64 {
+        self.header.initial.len() as u64 + self.len / RECORD_BYTES as u64
     }
 
     /// Hands a block's record buffer back for reuse by the next block
@@ -646,17 +678,25 @@ pub struct Replay {
     pub step: u64,
     /// Absolute time of the last record applied (s).
     pub time: f64,
+    /// Ids must stay below this (see [`LogReader::id_limit`]): a damaged or
+    /// forged id cannot make the id-indexed table allocate without bound.
+    id_limit: u64,
+    /// Number of materials in the header: particle materials index them.
+    materials: usize,
 }
 
 impl Replay {
-    /// The state at time 0 from the header.
-    pub fn start(header: &LogHeader) -> Replay {
+    /// The state at time 0 from the header; particle ids must be below
+    /// `id_limit` ([`LogReader::id_limit`] for a log being read).
+    pub fn start(header: &LogHeader, id_limit: u64) -> Result<Replay, String> {
         let mut replay = Replay {
             particles: Vec::new(),
             count: 0,
             origin: 0.0,
             step: 0,
             time: 0.0,
+            id_limit,
+            materials: header.densities.len(),
         };
         for (id, p) in &header.initial {
             let state = State {
@@ -672,9 +712,9 @@ impl Replay {
                     state,
                     clock: 0.0,
                 },
-            );
+            )?;
         }
-        replay
+        Ok(replay)
     }
 
     /// Number of particles present.
@@ -699,7 +739,19 @@ impl Replay {
             .filter_map(|(id, p)| p.as_ref().map(|p| (id as u64, p)))
     }
 
-    fn insert(&mut self, id: u64, p: ReplayParticle) {
+    fn insert(&mut self, id: u64, p: ReplayParticle) -> Result<(), String> {
+        if p.material as usize >= self.materials {
+            return Err(format!(
+                "particle {id} has material {}, but the header lists {} materials",
+                p.material, self.materials
+            ));
+        }
+        if id >= self.id_limit {
+            return Err(format!(
+                "particle id {id} is beyond the {} ids this log can hold (initial particles plus one per record)",
+                self.id_limit
+            ));
+        }
         let k = id as usize;
         if k >= self.particles.len() {
             self.particles.resize(k + 1, None);
@@ -707,6 +759,7 @@ impl Replay {
         if self.particles[k].replace(p).is_none() {
             self.count += 1;
         }
+        Ok(())
     }
 
     /// Applies one record, exactly as the engine changed its state.
@@ -731,6 +784,12 @@ impl Replay {
                 set(r.a, &r.state_a)?;
                 set(r.b, &r.state_b)?;
             }
+            k if k == RecordKind::Wall as u32 && r.b >= 6 => {
+                return Err(format!(
+                    "wall record at time {} names face {}; faces are 0..5",
+                    r.time, r.b
+                ));
+            }
             k if k == RecordKind::Wall as u32 || k == RecordKind::Wrap as u32 => {
                 set(r.a, &r.state_a)?
             }
@@ -741,7 +800,8 @@ impl Replay {
                     state: array_state(&r.state_a),
                     clock: r.clock,
                 };
-                self.insert(r.a, p);
+                self.insert(r.a, p)
+                    .map_err(|e| format!("record at time {}: {e}", r.time))?;
             }
             k if k == RecordKind::Remove as u32 => {
                 match self.particles.get_mut(r.a as usize).and_then(Option::take) {
@@ -770,7 +830,11 @@ impl Replay {
     }
 
     /// Replaces the state by a checkpoint's.
-    pub fn load_checkpoint(&mut self, h: &CheckpointHeader, particles: &[LogParticle]) {
+    pub fn load_checkpoint(
+        &mut self,
+        h: &CheckpointHeader,
+        particles: &[LogParticle],
+    ) -> Result<(), String> {
         self.particles.clear();
         self.count = 0;
         for p in particles {
@@ -780,11 +844,13 @@ impl Replay {
                 state: array_state(&p.state),
                 clock: h.clock,
             };
-            self.insert(p.id, rp);
+            self.insert(p.id, rp)
+                .map_err(|e| format!("checkpoint at time {}: {e}", h.time))?;
         }
         self.origin = h.time - h.clock;
         self.step = h.step;
         self.time = h.time;
+        Ok(())
     }
 
     /// First difference from a checkpoint, or `None` when bit-identical.

@@ -9,6 +9,8 @@
 //! `|c_a - c_b| < R_a + R_b + 2δ`; the lists hold exactly those pairs and are
 //! kept symmetric, so no collision can be missed whatever the speeds.
 
+use std::collections::HashMap;
+
 use glam::DVec3;
 
 /// Marks an empty link in the cell grid.
@@ -116,9 +118,40 @@ pub struct CellEntry {
     pub index: u32,
 }
 
+/// Most cells a [`CellGrid`] may have: 2²² (about 4.2 million: 17 MB of
+/// counts and at most 134 MB of entries). Beyond, the cells are widened
+/// uniformly; wider cells stay correct, only slower.
+pub const MAX_CELLS: usize = 1 << 22;
+
+/// Most cells along one axis (an older, per-axis form of the same cap).
+const MAX_CELLS_PER_AXIS: f64 = 1024.0;
+
+/// Entries the cells of a [`CellGrid`] hold in place (cells × stride) may
+/// grow to `max(GRID_ENTRY_BUDGET, GRID_ENTRIES_PER_SLOT × slots)`; past
+/// that, a full cell keeps its extra entries in a per-cell overflow list
+/// instead of widening every cell. This bounds the grid's memory by
+/// O(cells + particles) however the particles cluster (a dense bed in a
+/// grid of cells wider than needed would otherwise grow the common stride
+/// to the bed's particles per cell, for every cell).
+pub const GRID_ENTRY_BUDGET: usize = 1 << 22;
+/// See [`GRID_ENTRY_BUDGET`].
+pub const GRID_ENTRIES_PER_SLOT: usize = 16;
+
+/// Heap memory (bytes) of a [`CellGrid`] with `cells` cells and `slots`
+/// particle slots, at most (for memory estimates before a run).
+pub fn grid_bytes_bound(cells: usize, slots: usize) -> usize {
+    let budget = GRID_ENTRY_BUDGET.max(GRID_ENTRIES_PER_SLOT.saturating_mul(slots));
+    let entry = std::mem::size_of::<CellEntry>();
+    cells.saturating_mul(std::mem::size_of::<u32>())
+        + budget.min(cells.saturating_mul(4)).saturating_mul(entry)
+        + slots.saturating_mul(entry + std::mem::size_of::<(u32, u32)>())
+}
+
 /// Uniform grid of cells holding particles by shell centre. Each cell is a
 /// fixed-stride block of [`CellEntry`] in one flat array (the stride grows
-/// when a cell overflows); `position[i]` locates particle i for O(1) moves.
+/// when a cell overflows, within [`GRID_ENTRY_BUDGET`]; beyond it the
+/// cell's extra entries go to an overflow list); `position[i]` locates
+/// particle i for O(1) moves.
 #[derive(Clone, Debug)]
 pub struct CellGrid {
     lo: DVec3,
@@ -128,39 +161,92 @@ pub struct CellGrid {
     stride: usize,
     len: Vec<u32>,
     entries: Vec<CellEntry>,
+    /// Entries of cell `c` past `stride`, in order (only once the stride
+    /// cannot grow within the budget).
+    overflow: HashMap<u32, Vec<CellEntry>>,
     /// (cell, offset in cell) of each particle, `NONE` cell when absent.
     position: Vec<(u32, u32)>,
+    /// [`GRID_ENTRY_BUDGET`] (smaller in tests of the overflow lists).
+    budget_floor: usize,
 }
 
 impl CellGrid {
-    /// Grid over `[lo, hi]` with cells at least `min_width` wide per axis.
+    /// Cells per axis of a grid over a box of `size` with cells at least
+    /// `min_width` wide: `floor(size / min_width)` per axis (at least 1, at
+    /// most 1024), then widened uniformly until there are at most
+    /// [`MAX_CELLS`], keeping at least 3 cells (where there were) on
+    /// periodic axes.
+    pub fn dims_for(size: DVec3, min_width: f64, periodic: [bool; 3]) -> [usize; 3] {
+        let mut n = [1.0f64; 3];
+        let mut floor = [1.0f64; 3];
+        for axis in 0..3 {
+            let k = (size[axis] / min_width).floor();
+            // NaN (a flat axis with zero width) and values below 1: one cell.
+            n[axis] = if k >= 1.0 {
+                k.min(MAX_CELLS_PER_AXIS)
+            } else {
+                1.0
+            };
+            if periodic[axis] {
+                floor[axis] = n[axis].min(3.0);
+            }
+        }
+        for _ in 0..3 {
+            let total: f64 = n.iter().product();
+            if total <= MAX_CELLS as f64 {
+                break;
+            }
+            let free: Vec<usize> = (0..3).filter(|&a| n[a] > floor[a]).collect();
+            if free.is_empty() {
+                break;
+            }
+            let scale = (total / MAX_CELLS as f64).powf(1.0 / free.len() as f64);
+            for a in free {
+                n[a] = (n[a] / scale).floor().max(floor[a]);
+            }
+        }
+        n.map(|k| k as usize)
+    }
+
+    /// Grid over `[lo, hi]` with cells at least `min_width` wide per axis
+    /// (see [`CellGrid::dims_for`]).
     pub fn new(lo: DVec3, hi: DVec3, min_width: f64, periodic: [bool; 3], slots: usize) -> Self {
         let size = hi - lo;
-        let mut cells = [1usize; 3];
+        let cells = Self::dims_for(size, min_width, periodic);
         let mut inverse_width = DVec3::ZERO;
         for axis in 0..3 {
-            // Cap the cell count so huge dilute domains do not allocate
-            // absurd grids; wider cells stay correct, only slower.
-            let n = ((size[axis] / min_width).floor() as usize).clamp(1, 1 << 10);
-            cells[axis] = n;
             inverse_width[axis] = if size[axis] > 0.0 {
-                n as f64 / size[axis]
+                cells[axis] as f64 / size[axis]
             } else {
                 0.0
             };
         }
         let total = cells[0] * cells[1] * cells[2];
-        let stride = 4;
-        CellGrid {
+        let mut grid = CellGrid {
             lo,
             cells,
             inverse_width,
             periodic,
-            stride,
+            stride: 1,
             len: vec![0; total],
-            entries: vec![CellEntry::default(); total * stride],
+            entries: Vec::new(),
+            overflow: HashMap::new(),
             position: vec![(NONE, 0); slots],
-        }
+            budget_floor: GRID_ENTRY_BUDGET,
+        };
+        grid.stride = if total * 4 <= grid.entry_budget() {
+            4
+        } else {
+            1
+        };
+        grid.entries = vec![CellEntry::default(); total * grid.stride];
+        grid
+    }
+
+    /// Inline entries the grid may hold (see [`GRID_ENTRY_BUDGET`]).
+    fn entry_budget(&self) -> usize {
+        self.budget_floor
+            .max(GRID_ENTRIES_PER_SLOT.saturating_mul(self.position.len()))
     }
 
     pub fn resize(&mut self, slots: usize) {
@@ -171,6 +257,7 @@ impl CellGrid {
     pub fn emptied(&self, slots: usize) -> CellGrid {
         CellGrid {
             len: vec![0; self.len.len()],
+            overflow: HashMap::new(),
             position: vec![(NONE, 0); slots],
             ..self.clone()
         }
@@ -228,19 +315,37 @@ impl CellGrid {
     pub fn place_in(&mut self, i: usize, c: [usize; 3], centre: DVec3, reach: f64) {
         self.remove(i);
         let cell = self.flat(c);
-        if self.len[cell] as usize == self.stride {
+        let k = self.len[cell] as usize;
+        if k == self.stride && self.len.len() * self.stride * 2 <= self.entry_budget() {
             self.grow();
         }
-        let k = self.len[cell] as usize;
         // Round the reach up so that f32 storage never shrinks a shell.
         let reach = (reach as f32).next_up();
-        self.entries[cell * self.stride + k] = CellEntry {
+        let entry = CellEntry {
             centre,
             reach,
             index: i as u32,
         };
+        if k < self.stride {
+            self.entries[cell * self.stride + k] = entry;
+        } else {
+            self.overflow.entry(cell as u32).or_default().push(entry);
+        }
         self.len[cell] += 1;
         self.position[i] = (cell as u32, k as u32);
+    }
+
+    /// Entry `k` of `cell` (in place or in the overflow list).
+    fn entry_mut(&mut self, cell: usize, k: usize) -> &mut CellEntry {
+        if k < self.stride {
+            &mut self.entries[cell * self.stride + k]
+        } else {
+            let list = self
+                .overflow
+                .get_mut(&(cell as u32))
+                .expect("a cell past its stride has an overflow list");
+            &mut list[k - self.stride]
+        }
     }
 
     /// Takes particle `i` out of its cell, if it is in one.
@@ -251,31 +356,50 @@ impl CellGrid {
         }
         let (cell, k) = (cell as usize, k as usize);
         let last = self.len[cell] as usize - 1;
-        let base = cell * self.stride;
         if k != last {
-            let moved = self.entries[base + last];
-            self.entries[base + k] = moved;
+            let moved = *self.entry_mut(cell, last);
+            *self.entry_mut(cell, k) = moved;
             self.position[moved.index as usize].1 = k as u32;
+        }
+        if last >= self.stride {
+            let key = cell as u32;
+            if let Some(list) = self.overflow.get_mut(&key) {
+                list.pop();
+                if list.is_empty() {
+                    self.overflow.remove(&key);
+                }
+            }
         }
         self.len[cell] -= 1;
         self.position[i] = (NONE, 0);
     }
 
+    /// Doubles the stride; overflow entries move into the new room.
     fn grow(&mut self) {
-        let new_stride = self.stride * 2;
+        let old = self.stride;
+        let new_stride = old * 2;
         let mut entries = vec![CellEntry::default(); self.len.len() * new_stride];
         for (cell, &n) in self.len.iter().enumerate() {
-            let n = n as usize;
+            let n = (n as usize).min(old);
             entries[cell * new_stride..cell * new_stride + n]
-                .copy_from_slice(&self.entries[cell * self.stride..cell * self.stride + n]);
+                .copy_from_slice(&self.entries[cell * old..cell * old + n]);
         }
+        for (&cell, list) in self.overflow.iter_mut() {
+            let base = cell as usize * new_stride + old;
+            let take = list.len().min(new_stride - old);
+            for (j, e) in list.drain(..take).enumerate() {
+                entries[base + j] = e;
+            }
+        }
+        self.overflow.retain(|_, list| !list.is_empty());
         self.entries = entries;
         self.stride = new_stride;
     }
 
     /// Heap memory of the grid (bytes).
     pub fn heap_bytes(&self) -> usize {
-        self.entries.len() * std::mem::size_of::<CellEntry>()
+        let overflow: usize = self.overflow.values().map(Vec::capacity).sum();
+        (self.entries.len() + overflow) * std::mem::size_of::<CellEntry>()
             + self.len.len() * std::mem::size_of::<u32>()
             + self.position.len() * std::mem::size_of::<(u32, u32)>()
     }
@@ -325,8 +449,16 @@ impl CellGrid {
                     let cell = self.flat([x, y, z]);
                     let base = cell * self.stride;
                     let image = exact.then_some(ix + 3 * iy + 9 * iz);
-                    for e in &self.entries[base..base + self.len[cell] as usize] {
+                    let n = self.len[cell] as usize;
+                    for e in &self.entries[base..base + n.min(self.stride)] {
                         f(e, image);
+                    }
+                    if n > self.stride
+                        && let Some(list) = self.overflow.get(&(cell as u32))
+                    {
+                        for e in list {
+                            f(e, image);
+                        }
                     }
                 }
             }
@@ -350,6 +482,69 @@ mod tests {
         l.remove_index(1, 3);
         assert_eq!(l.list(1).len(), 9);
         assert!(l.list(1).iter().all(|&e| unpack(e).0 != 3));
+    }
+
+    /// With the stride budget spent, a full cell keeps its extra entries in
+    /// an overflow list: every entry is still found exactly once, removals
+    /// keep the positions consistent, and the grid's memory stays bounded.
+    #[test]
+    fn full_cells_overflow_beyond_the_entry_budget() {
+        let lo = DVec3::ZERO;
+        let hi = DVec3::new(4.0, 4.0, 4.0);
+        let mut g = CellGrid::new(lo, hi, 1.0, [false; 3], 40);
+        // 64 cells; a floor of 64 x 8 entries lets the stride grow to 8 only.
+        g.budget_floor = 64 * 8;
+        let inside = DVec3::new(1.5, 1.5, 1.5);
+        for i in 0..30 {
+            g.place(i, inside + DVec3::splat(0.01 * i as f64), 0.6);
+        }
+        assert_eq!(g.stride, 8, "the stride grows within the budget only");
+        let near = |g: &CellGrid| {
+            let mut seen = Vec::new();
+            g.for_each_near(inside, |e, _| seen.push(e.index));
+            seen.sort();
+            seen
+        };
+        assert_eq!(near(&g), (0..30).collect::<Vec<u32>>());
+        for i in [0, 7, 8, 29, 15] {
+            g.remove(i);
+        }
+        let expected: Vec<u32> = (0..30).filter(|i| ![0, 7, 8, 29, 15].contains(i)).collect();
+        assert_eq!(near(&g), expected);
+        // Every particle's recorded position still points at itself.
+        for &i in &expected {
+            let (cell, k) = g.position[i as usize];
+            assert_eq!(g.entry_mut(cell as usize, k as usize).index, i);
+        }
+        // Moving particles elsewhere empties the overflow list.
+        for &i in &expected {
+            g.place(
+                i as usize,
+                DVec3::new(3.5, 0.5, 0.5 + 0.1 * (i % 30) as f64),
+                0.6,
+            );
+        }
+        assert!(g.overflow.is_empty() || g.overflow.values().all(|l| !l.is_empty()));
+        assert!(g.heap_bytes() < 64 * 8 * 32 + 40 * 40 + 40 * 32 + 64 * 4 + 4096);
+    }
+
+    #[test]
+    fn grid_cells_are_capped_in_total() {
+        let size = DVec3::new(1.0, 2.0, 1.0);
+        // 1e-4 wide cells would be 1e4 x 2e4 x 1e4 (1024 per axis at most).
+        let n = CellGrid::dims_for(size, 1e-4, [true, false, false]);
+        assert!(n.iter().product::<usize>() <= MAX_CELLS, "{n:?}");
+        assert!(n.iter().all(|&k| k >= 100), "{n:?}");
+        // Degenerate widths give one cell, never zero or an overflow.
+        assert_eq!(
+            CellGrid::dims_for(size, f64::INFINITY, [false; 3]),
+            [1, 1, 1]
+        );
+        assert_eq!(CellGrid::dims_for(DVec3::ZERO, 0.0, [false; 3]), [1, 1, 1]);
+        // Periodic axes keep at least 3 cells where they had them.
+        let n = CellGrid::dims_for(DVec3::new(5.0, 1e4, 1e4), 1.0, [true, false, false]);
+        assert!(n[0] >= 3, "{n:?}");
+        assert!(n.iter().product::<usize>() <= MAX_CELLS, "{n:?}");
     }
 
     #[test]

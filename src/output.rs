@@ -82,14 +82,25 @@ impl Checkpoint {
     pub fn read(path: &Path) -> anyhow::Result<Checkpoint> {
         let bytes = std::fs::read(path)
             .with_context(|| format!("reading checkpoint {}", path.display()))?;
-        let (cp, _): (Checkpoint, usize) =
-            bincode::serde::decode_from_slice(&bytes, bincode_config())
-                .with_context(|| format!("{}: not a valid edpm checkpoint", path.display()))?;
+        Self::from_bytes(&bytes, &path.display().to_string())
+    }
+
+    /// Decodes a checkpoint file's bytes; `name` is used in messages. The
+    /// particles are not checked here (the engine checks each one).
+    pub fn from_bytes(bytes: &[u8], name: &str) -> anyhow::Result<Checkpoint> {
+        let (cp, used): (Checkpoint, usize) =
+            bincode::serde::decode_from_slice(bytes, bincode_config())
+                .with_context(|| format!("{name}: not a valid edpm checkpoint"))?;
         if cp.version != CHECKPOINT_VERSION {
             anyhow::bail!(
-                "{}: checkpoint format version {} is not supported (this edpm reads version {CHECKPOINT_VERSION})",
-                path.display(),
+                "{name}: checkpoint format version {} is not supported (this edpm reads version {CHECKPOINT_VERSION})",
                 cp.version
+            );
+        }
+        if used != bytes.len() {
+            anyhow::bail!(
+                "{name}: not a valid edpm checkpoint: {} unexpected bytes after the particles",
+                bytes.len() - used
             );
         }
         Ok(cp)

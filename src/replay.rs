@@ -103,8 +103,14 @@ pub fn replay_cli(path: &Path, opts: &ReplayOptions) -> anyhow::Result<()> {
 
 /// Replays a log: up to `opts.at` if given, else to its end.
 pub fn replay_log(path: &Path, opts: &ReplayOptions) -> anyhow::Result<(ReplayOutcome, Replay)> {
+    if let Some(t) = opts.at
+        && !(t.is_finite() && t >= 0.0)
+    {
+        anyhow::bail!("--at: must be a time >= 0 s, got {t}");
+    }
     let mut reader = LogReader::open(path)?;
-    let mut replay = Replay::start(&reader.header);
+    let mut replay = Replay::start(&reader.header, reader.id_limit())
+        .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
     let mut stats = opts.stats.then(|| CollisionStats::new(&reader.header));
     // Seeking: start from the last checkpoint at or before the time asked.
     if let (Some(t), false, false) = (opts.at, opts.verify, opts.stats)
@@ -125,6 +131,8 @@ pub fn replay_log(path: &Path, opts: &ReplayOptions) -> anyhow::Result<(ReplayOu
         particles: 0,
         stats: None,
     };
+    // Whether the replay ran to the end of the log (not stopped at `at`).
+    let mut reached_end = true;
     'blocks: loop {
         let block = reader.next_block().map_err(|e| {
             anyhow::anyhow!(
@@ -144,6 +152,7 @@ pub fn replay_log(path: &Path, opts: &ReplayOptions) -> anyhow::Result<(ReplayOu
                         r.time > t || (r.time == t && r.kind != RecordKind::FlowStepEnd as u32)
                     };
                     if opts.at.is_some_and(after) {
+                        reached_end = false;
                         break 'blocks;
                     }
                     if let Some(s) = stats.as_mut() {
@@ -158,6 +167,7 @@ pub fn replay_log(path: &Path, opts: &ReplayOptions) -> anyhow::Result<(ReplayOu
             }
             Block::Checkpoint(h, particles) => {
                 if opts.at.is_some_and(|t| h.time > t) {
+                    reached_end = false;
                     break;
                 }
                 if opts.verify && outcome.first_mismatch.is_none() {
@@ -170,10 +180,29 @@ pub fn replay_log(path: &Path, opts: &ReplayOptions) -> anyhow::Result<(ReplayOu
                     }
                 } else if !opts.verify && !opts.stats {
                     // Seeking: a checkpoint is the state itself.
-                    replay.load_checkpoint(&h, &particles);
+                    replay
+                        .load_checkpoint(&h, &particles)
+                        .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
                 }
             }
         }
+    }
+    if let Some(t) = opts.at
+        && reached_end
+        && t > replay.time
+    {
+        // Beyond the last record the state is unknown (forces act at flow
+        // steps): extrapolating would be silently wrong.
+        anyhow::bail!(
+            "{}: --at {t} s is after the end of the log at {} s{}",
+            path.display(),
+            replay.time,
+            if reader.truncated_at.is_some() {
+                " (the log is truncated)"
+            } else {
+                ""
+            }
+        );
     }
     outcome.truncated_at = reader.truncated_at;
     outcome.end_time = replay.time;
@@ -333,7 +362,8 @@ impl CollisionStats {
             self.pair
                 .observe(collision::contact_velocity(n, &a, &b), n, loss, r.aux);
         } else if r.kind == RecordKind::Wall as u32 {
-            let Some(pa) = replay.get(r.a) else {
+            // An unknown particle or face is reported by `Replay::apply`.
+            let (Some(pa), true) = (replay.get(r.a), r.b < 6) else {
                 return;
             };
             let a = body(pa);

@@ -20,7 +20,7 @@ use crate::collision::ContactParams;
 use crate::domain::AxisBoundary;
 use crate::domain::{Domain, OutletMode};
 use crate::engine::{
-    CollapseReport, Counters, Engine, EngineConfig, InletZone, NeighbourSearch, Record,
+    BadParticle, CollapseReport, Counters, Engine, EngineConfig, InletZone, NeighbourSearch, Record,
 };
 use crate::eventlog::{
     CheckpointHeader, LogHeader, LogRecord, LogWriter, RecordKind, checkpoint_particles,
@@ -46,9 +46,15 @@ pub fn run_cli(
 ) -> anyhow::Result<()> {
     let mut overrides = overrides.to_vec();
     if let Some(t) = t_end {
+        if !(t.is_finite() && t > 0.0) {
+            anyhow::bail!("--t-end: must be > 0 s and finite, got {t}");
+        }
         overrides.push(format!("time.t_end={t:e}"));
     }
     let scenario = Scenario::from_file_with_overrides(scenario_path, &overrides)?;
+    for w in &scenario.warnings {
+        eprintln!("edpm: warning: {}: {w}", scenario.name);
+    }
     let out_dir = match out {
         Some(dir) => dir.to_path_buf(),
         None => {
@@ -120,6 +126,21 @@ pub struct Summary {
     pub log_bytes: Option<u64>,
     /// Gas-phase totals of a gas-coupled run.
     pub gas: Option<GasTotals>,
+    /// Whether the run reached `t_end`; a failed run writes the summary and
+    /// time series up to the failure, and no final state.
+    pub status: RunStatus,
+    /// Why a failed run stopped.
+    pub error: Option<String>,
+    /// Validation warnings of the scenario.
+    pub warnings: Vec<String>,
+}
+
+/// How a run ended.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum RunStatus {
+    Completed,
+    Failed,
 }
 
 /// Settings and shares of the collisions that the TC model and the
@@ -225,6 +246,11 @@ pub fn run_scenario_with(
     out_dir: &Path,
     opts: &RunOptions,
 ) -> anyhow::Result<Summary> {
+    if opts.log_checkpoint_steps == Some(0) {
+        anyhow::bail!(
+            "--log-checkpoint-steps: must be >= 1 (a checkpoint every STEPS flow steps), got 0"
+        );
+    }
     match s.engine.queue {
         QueueKind::IndexedHeap => simulate::<IndexedHeap>(s, out_dir, opts),
         QueueKind::Calendar => simulate::<CalendarQueue>(s, out_dir, opts),
@@ -321,6 +347,7 @@ pub fn build_engine<Q: EventQueue>(s: &Scenario) -> anyhow::Result<Engine<Q>> {
     let particles = match &s.initial.checkpoint {
         Some(path) => {
             let cp = Checkpoint::read(path)?;
+            crate::scenario::limits::check_loaded(s, &cp.particles)?;
             let mut ps = cp.particles;
             let more = crate::initial::initial_particles_around(s, &ps, &mut rng)?;
             ps.extend(more);
@@ -486,6 +513,17 @@ const TIME_SERIES_HEADER: [&str; 17] = [
     "centre_of_mass_z_m",
 ];
 
+/// Number of flow steps to reach `t_end` (the last one may be shorter).
+pub fn flow_steps(t_end: f64, dt_flow: f64) -> u64 {
+    (t_end / dt_flow - 1e-9).ceil().max(1.0) as u64
+}
+
+/// The smallest multiple of `interval` after `t` (with a relative
+/// tolerance of 1e-9): when the next sample or snapshot is due.
+fn next_multiple(t: f64, interval: f64) -> f64 {
+    ((t / interval * (1.0 + 1e-9)).floor() + 1.0) * interval
+}
+
 fn simulate<Q: EventQueue>(
     s: &Scenario,
     out_dir: &Path,
@@ -520,21 +558,28 @@ fn simulate<Q: EventQueue>(
     if let Some(a) = analysis.as_mut() {
         a.write(&engine, gas.as_ref())?;
     }
-    let steps_total = (s.time.t_end / s.time.dt_flow - 1e-9).ceil().max(1.0) as u64;
+    let dt_flow = s.time.dt_flow;
+    let steps = flow_steps(s.time.t_end, dt_flow);
+    // The last step ends exactly at t_end: (0, dt_flow (1 + 1e-9)]. When
+    // t_end is a whole number of steps (to within the 1e-9 of the step
+    // count), the last step is a full one, so that a run and a longer run
+    // of the same scenario agree bit for bit up to its end.
+    let remainder = s.time.t_end - (steps - 1) as f64 * dt_flow;
+    let last_dt = if (remainder - dt_flow).abs() <= 1e-9 * dt_flow {
+        dt_flow
+    } else {
+        remainder
+    };
     let mut log = match &opts.log {
         Some(path) => {
             engine.set_recording(true);
-            let every = opts
-                .log_checkpoint_steps
-                .unwrap_or((steps_total / 10).max(1));
+            let every = opts.log_checkpoint_steps.unwrap_or((steps / 10).max(1));
             Some(RunLog::create(s, &engine, path, every)?)
         }
         None => None,
     };
     let progress = opts.progress;
     let particles_initial = engine.len();
-    let dt = s.time.dt_flow;
-    let steps = (s.time.t_end / dt - 1e-9).ceil().max(1.0) as u64;
     let gravity = s.domain.gravity;
     let mut feeder = InletFeeder::new(s);
     // Anything that acts at flow steps: forces (kicks) or inlet feeding.
@@ -557,97 +602,122 @@ fn simulate<Q: EventQueue>(
     let mut collapse_seen = 0;
     sample_interval_row(&engine, &mut series, &last, 0.0, 0);
     let mut next_sample = s.output.sample_interval;
-    for step in 0..steps {
-        if let Some(f) = feeder.as_mut() {
-            f.feed(s, &mut engine, dt);
-        }
-        let kick = match s.time.splitting {
-            Splitting::FirstOrder => 1.0,
-            Splitting::SecondOrder => 0.5,
-        };
-        if let Some(g) = gas.as_mut() {
-            // Drag, pressure gradient and gravity as one first-order kick.
-            g.step(&mut engine, dt)
-                .with_context(|| format!("{}: gas phase", s.name))?;
-        } else if gravity != DVec3::ZERO {
-            let dv = gravity * (kick * dt);
-            if let Some(log) = log.as_mut() {
-                log.drain(&mut engine)?;
-                log.kick(&engine, dv)?;
+    let outcome = (|| -> anyhow::Result<()> {
+        for step in 0..steps {
+            let last_step = step + 1 == steps;
+            let dt = if last_step { last_dt } else { dt_flow };
+            if let Some(f) = feeder.as_mut() {
+                f.feed(s, &mut engine, dt);
             }
-            engine.kick_all(dv);
-        }
-        engine.advance(dt);
-        if let Some(a) = analysis.as_mut() {
-            a.tally(&engine, dt);
-        }
-        if let Some(log) = log.as_mut() {
-            // Drain every step: the record buffer stays small and in cache.
-            log.drain(&mut engine)?;
-        } else if analysis.is_some() {
-            engine.records.clear();
-        }
-        let t = engine.time();
-        let last_step = step + 1 == steps;
-        let sample_now = t >= next_sample * (1.0 - 1e-9) || last_step;
-        let checkpoint_now = log
-            .as_ref()
-            .is_some_and(|l| (step + 1) % l.checkpoint_steps == 0)
-            || last_step;
-        // Without forces nothing changes at a flow step: synchronise only
-        // where results are taken (re-predicting everyone costs ~N events).
-        if forces || sample_now || checkpoint_now {
-            if let Some(log) = log.as_mut() {
-                log.flow_step_end(&mut engine)?;
-            }
-            engine.end_flow_step();
-        }
-        if s.time.splitting == Splitting::SecondOrder && gravity != DVec3::ZERO && gas.is_none() {
-            let dv = gravity * (0.5 * dt);
-            if let Some(log) = log.as_mut() {
-                log.drain(&mut engine)?;
-                log.kick(&engine, dv)?;
-            }
-            engine.kick_all(dv);
-        }
-        if let Some(log) = log.as_mut()
-            && checkpoint_now
-        {
-            log.checkpoint(&mut engine, step + 1)?;
-        }
-        if sample_now {
-            let new_reports = engine.collapse_reports.len() - collapse_seen;
-            collapse_seen = engine.collapse_reports.len();
-            sample_interval_row(&engine, &mut series, &last, t - last_time, new_reports);
+            let kick = match s.time.splitting {
+                Splitting::FirstOrder => 1.0,
+                Splitting::SecondOrder => 0.5,
+            };
             if let Some(g) = gas.as_mut() {
-                g.sample_row(&mut gas_series);
+                // Drag, pressure gradient and gravity as one first-order kick.
+                if let Err(e) = g.step(&mut engine, dt) {
+                    anyhow::bail!("{}: gas phase: {e}; {}", s.name, gas_failure_causes(g, dt));
+                }
+            } else if gravity != DVec3::ZERO {
+                let dv = gravity * (kick * dt);
+                if let Some(log) = log.as_mut() {
+                    log.drain(&mut engine)?;
+                    log.kick(&engine, dv)?;
+                }
+                engine.kick_all(dv);
             }
-            last = engine.counters;
-            last_time = t;
-            while next_sample <= t * (1.0 + 1e-9) {
-                next_sample += s.output.sample_interval;
+            if forces && let Some((bad, k)) = too_fast(&engine, dt) {
+                let what = format!(
+                    "moves {k:.3e} of its diameters in a flow step of {dt:?} s after the kicks, more than the {:.2e} the event clock resolves",
+                    crate::scenario::limits::CLOCK_RESOLUTION_DIAMETERS
+                );
+                anyhow::bail!(
+                    "{}: {}",
+                    s.name,
+                    particle_failure(s, &engine, gas.as_ref(), &bad, &what)
+                );
+            }
+            engine.advance(dt);
+            if let Some(stall) = engine.stall() {
+                anyhow::bail!("{}: {}", s.name, stall_message(s, stall));
+            }
+            if let Some(a) = analysis.as_mut() {
+                a.tally(&engine, dt);
+            }
+            if let Some(log) = log.as_mut() {
+                // Drain every step: the record buffer stays small and in cache.
+                log.drain(&mut engine)?;
+            } else if analysis.is_some() {
+                engine.records.clear();
+            }
+            let t = engine.time();
+            let sample_now = t >= next_sample * (1.0 - 1e-9) || last_step;
+            let checkpoint_now = log
+                .as_ref()
+                .is_some_and(|l| (step + 1) % l.checkpoint_steps == 0)
+                || last_step;
+            // Without forces nothing changes at a flow step: synchronise only
+            // where results are taken (re-predicting everyone costs ~N events).
+            if forces || sample_now || checkpoint_now {
+                if let Some(log) = log.as_mut() {
+                    log.flow_step_end(&mut engine)?;
+                }
+                engine.end_flow_step();
+                if let Some(bad) = engine.find_bad_particle() {
+                    anyhow::bail!(
+                        "{}: {}",
+                        s.name,
+                        bad_particle_message(s, &engine, gas.as_ref(), &bad)
+                    );
+                }
+            }
+            if s.time.splitting == Splitting::SecondOrder && gravity != DVec3::ZERO && gas.is_none()
+            {
+                let dv = gravity * (0.5 * dt);
+                if let Some(log) = log.as_mut() {
+                    log.drain(&mut engine)?;
+                    log.kick(&engine, dv)?;
+                }
+                engine.kick_all(dv);
+            }
+            if let Some(log) = log.as_mut()
+                && checkpoint_now
+            {
+                log.checkpoint(&mut engine, step + 1)?;
+            }
+            if sample_now {
+                let new_reports = engine.collapse_reports.len() - collapse_seen;
+                collapse_seen = engine.collapse_reports.len();
+                sample_interval_row(&engine, &mut series, &last, t - last_time, new_reports);
+                if let Some(g) = gas.as_mut() {
+                    g.sample_row(&mut gas_series);
+                }
+                last = engine.counters;
+                last_time = t;
+                next_sample = next_multiple(t, s.output.sample_interval);
+            }
+            if let Some(sn) = snapshots.as_mut()
+                && (t >= sn.next * (1.0 - 1e-9) || last_step)
+            {
+                sn.write(&engine, gas.as_ref())?;
+            }
+            if let Some(a) = analysis.as_mut()
+                && (t >= a.next * (1.0 - 1e-9) || last_step)
+            {
+                a.write(&engine, gas.as_ref())?;
+            }
+            if let Some(bar) = &bar {
+                bar.set_position(step + 1);
+                let events = engine.counters.pair_collisions + engine.counters.wall_collisions;
+                let rate = events as f64 / wall_start.elapsed().as_secs_f64().max(1e-9);
+                bar.set_message(format!(
+                    "{t:.4} s, {} particles, {rate:.2e} collisions/s",
+                    engine.len()
+                ));
             }
         }
-        if let Some(sn) = snapshots.as_mut()
-            && (t >= sn.next * (1.0 - 1e-9) || last_step)
-        {
-            sn.write(&engine, gas.as_ref())?;
-        }
-        if let Some(a) = analysis.as_mut()
-            && (t >= a.next * (1.0 - 1e-9) || last_step)
-        {
-            a.write(&engine, gas.as_ref())?;
-        }
-        if let Some(bar) = &bar {
-            bar.set_position(step + 1);
-            let events = engine.counters.pair_collisions + engine.counters.wall_collisions;
-            let rate = events as f64 / wall_start.elapsed().as_secs_f64().max(1e-9);
-            bar.set_message(format!(
-                "{t:.4} s, {} particles, {rate:.2e} collisions/s",
-                engine.len()
-            ));
-        }
-    }
+        Ok(())
+    })();
     if let Some(bar) = bar {
         bar.finish_and_clear();
     }
@@ -664,14 +734,27 @@ fn simulate<Q: EventQueue>(
     if gas.is_some() {
         gas_series.write(&out_dir.join("gas_timeseries.csv"))?;
     }
-    let final_particles: Vec<NewParticle> = engine.particles().map(NewParticle::from).collect();
-    Checkpoint {
-        version: CHECKPOINT_VERSION,
-        time: engine.time(),
-        particles: final_particles,
+    if outcome.is_err() {
+        // A final state left by an earlier run in this directory would
+        // contradict this run's summary.
+        for stale in ["final_state.bin", "final_particles.csv"] {
+            match std::fs::remove_file(out_dir.join(stale)) {
+                Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+                    return Err(e).with_context(|| format!("removing {stale} of an earlier run"));
+                }
+                _ => {}
+            }
+        }
+    } else {
+        let final_particles: Vec<NewParticle> = engine.particles().map(NewParticle::from).collect();
+        Checkpoint {
+            version: CHECKPOINT_VERSION,
+            time: engine.time(),
+            particles: final_particles,
+        }
+        .write(&out_dir.join("final_state.bin"))?;
+        write_particles_csv(&engine, &out_dir.join("final_particles.csv"))?;
     }
-    .write(&out_dir.join("final_state.bin"))?;
-    write_particles_csv(&engine, &out_dir.join("final_particles.csv"))?;
     let (ke_t, ke_r) = engine.kinetic_energy();
     let events = engine.counters.pair_collisions + engine.counters.wall_collisions;
     let summary = Summary {
@@ -679,7 +762,7 @@ fn simulate<Q: EventQueue>(
         overrides: s.overrides.clone(),
         seed: s.seed,
         t_end: engine.time(),
-        dt_flow: dt,
+        dt_flow,
         flow_steps: steps,
         queue: s.engine.queue,
         neighbours: engine.neighbour_search(),
@@ -699,10 +782,227 @@ fn simulate<Q: EventQueue>(
         elastic_overrides: ElasticOverrides::new(s, &engine.counters),
         log_bytes,
         gas: gas.as_ref().map(|g| g.totals),
+        status: if outcome.is_ok() {
+            RunStatus::Completed
+        } else {
+            RunStatus::Failed
+        },
+        error: outcome.as_ref().err().map(|e| format!("{e:#}")),
+        warnings: s.warnings.clone(),
     };
     let json = serde_json::to_string_pretty(&summary).context("encoding summary")?;
     write_atomic(&out_dir.join("summary.json"), json.as_bytes())?;
-    Ok(summary)
+    match outcome {
+        Ok(()) => Ok(summary),
+        Err(e) => Err(anyhow::anyhow!(
+            "{e:#}; the run stopped at t = {} s: results so far are in {} (summary.json has \"status\": \"failed\", timeseries.csv the samples up to then)",
+            engine.time(),
+            out_dir.display()
+        )),
+    }
+}
+
+/// Likely causes of a failed gas step, with the scenario's values.
+fn gas_failure_causes(g: &GasRun, dt: f64) -> String {
+    let grid = &g.gas.grid;
+    let mut causes = Vec::new();
+    let now = g.gas.courant(dt);
+    let reached = if now.is_finite() {
+        g.totals.max_courant.max(now)
+    } else {
+        g.totals.max_courant
+    };
+    let inflows = crate::scenario::limits::gas_inflow_speeds(&g.gas.config);
+    let fastest = inflows
+        .iter()
+        .max_by(|a, b| (a.1 / grid.h[a.2]).total_cmp(&(b.1 / grid.h[b.2])))
+        .map(|(field, v, axis)| {
+            let h = grid.h[*axis];
+            format!(
+                " (the fastest inflow, {field} = {v:?} m/s, alone gives {:.3} with cells of {h:.3e} m; the gas speeds up where the gas fraction is low)",
+                v * dt / h
+            )
+        })
+        .unwrap_or_default();
+    causes.push(format!(
+        "the flow step is too long for the gas speeds: with time.dt_flow = {dt:?} s the gas Courant number reached {reached:.3} before the failure{fastest}; the explicit gas convection needs it below about 1: try time.dt_flow <= {:.3e} s{}",
+        dt * 0.5 / reached.max(0.5),
+        inflows
+            .first()
+            .map(|_| ", or lower the inflow or jet speeds")
+            .unwrap_or("")
+    ));
+    let min_eps = g
+        .gas
+        .gas_fraction
+        .iter()
+        .copied()
+        .fold(f64::INFINITY, f64::min);
+    causes.push(format!(
+        "very dense cells: the smallest gas fraction is {min_eps:.3} ({} cell updates were clamped at {} so far)",
+        g.totals.clamped_cells,
+        crate::gas::coupling::MIN_GAS_FRACTION
+    ));
+    causes.push(format!(
+        "tight solver settings: gas.mass_tolerance = {:e}, gas.max_outer_iterations = {}",
+        g.gas.config.mass_tolerance, g.gas.config.max_outer_iterations
+    ));
+    format!("likely causes: {}", causes.join("; "))
+}
+
+/// The smallest normal restitution of any pair of particle materials.
+fn smallest_restitution(s: &Scenario) -> f64 {
+    let n = s.materials.len() as u16;
+    let mut e: f64 = 1.0;
+    for a in 0..n {
+        for b in 0..n {
+            if let Some(p) = s.contacts.get(a, b) {
+                e = e.min(p.e_n);
+            }
+        }
+    }
+    e
+}
+
+/// The watchdog's report as an error message with causes and remedies.
+fn stall_message(s: &Scenario, stall: &crate::engine::StallReport) -> String {
+    let p = stall.position;
+    let tc = s.collisions.tc;
+    let tc_now = if tc > 0.0 {
+        format!("collisions.tc = {tc:?} s is set; a longer one")
+    } else {
+        "the TC model (collisions.tc, e.g. 1e-5 s: a collision within tc of a particle's previous one is elastic; now 0)".to_string()
+    };
+    format!(
+        "simulated time stopped advancing at t = {:?} s: {} events moved the clock by {:.3e} s, less than 1e-6 of the flow step ({:?} s). Likely cause: inelastic collapse in a dense region (smallest restitution e_n = {:?}): particle {} at ({:.6}, {:.6}, {:.6}) m collided {} times in this flow step, and {} particles passed collisions.max_collisions_per_step = {}. Remedies: {tc_now}; a higher restitution (collisions.default.e_n); fewer particles in the dense region. The hard-sphere event loop cannot pass such a cluster; a hybrid model that treats dense regions with soft spheres is planned",
+        stall.time,
+        stall.events,
+        stall.clock_advance,
+        stall.flow_step,
+        smallest_restitution(s),
+        stall.id,
+        p.x,
+        p.y,
+        p.z,
+        stall.collisions,
+        stall.beyond_guard,
+        s.collisions.max_collisions_per_step
+    )
+}
+
+/// A particle that is not finite or outside the domain, as an error
+/// message with the likely causes and their values.
+fn bad_particle_message<Q: EventQueue>(
+    s: &Scenario,
+    engine: &Engine<Q>,
+    gas: Option<&GasRun>,
+    bad: &BadParticle,
+) -> String {
+    const AXES: [&str; 3] = ["x", "y", "z"];
+    let what = match bad.outside_axis {
+        None => "has a non-finite position or velocity".to_string(),
+        Some(a) => format!(
+            "left the domain along {} ([{:?}, {:?}] m)",
+            AXES[a], s.domain.lo[a], s.domain.hi[a]
+        ),
+    };
+    particle_failure(s, engine, gas, bad, &what)
+}
+
+/// The particle that moves the most of its own diameters in a flow step of
+/// `dt`, when that is more than the event clock resolves
+/// ([`crate::scenario::limits::CLOCK_RESOLUTION_DIAMETERS`]), with the
+/// number; checked after the kicks of a flow step, before its events.
+fn too_fast<Q: EventQueue>(engine: &Engine<Q>, dt: f64) -> Option<(BadParticle, f64)> {
+    let limit = crate::scenario::limits::CLOCK_RESOLUTION_DIAMETERS;
+    let mut worst: Option<(BadParticle, f64)> = None;
+    for p in engine.particles() {
+        let k = p.vel.length() * dt / (2.0 * p.radius);
+        // NaN counts as too fast (and as faster than any number).
+        let beyond = k.is_nan() || k > limit;
+        if beyond && worst.as_ref().is_none_or(|w| k.is_nan() || k > w.1) {
+            let bad = BadParticle {
+                id: p.id,
+                position: p.pos,
+                velocity: p.vel,
+                omega: p.omega,
+                radius: p.radius,
+                outside_axis: None,
+            };
+            worst = Some((bad, k));
+        }
+    }
+    worst
+}
+
+/// A particle in trouble (`what`), as an error message with the likely
+/// causes and their values.
+fn particle_failure<Q: EventQueue>(
+    s: &Scenario,
+    engine: &Engine<Q>,
+    gas: Option<&GasRun>,
+    bad: &BadParticle,
+    what: &str,
+) -> String {
+    let dt = s.time.dt_flow;
+    let mut causes = Vec::new();
+    // The fastest finite particle against the event clock's resolution.
+    let (mut fastest, mut d_min) = (0.0f64, f64::INFINITY);
+    for p in engine.particles() {
+        if p.vel.is_finite() {
+            fastest = fastest.max(p.vel.length());
+        }
+        d_min = d_min.min(2.0 * p.radius);
+    }
+    let resolved = crate::scenario::limits::resolved_speed(d_min, dt);
+    causes.push(format!(
+        "speeds: the fastest particle moves at {fastest:.3e} m/s, {:.3e} of the smallest diameters per flow step (time.dt_flow = {dt:?} s){}",
+        fastest * dt / d_min,
+        if fastest > resolved {
+            format!(", more than the event clock resolves ({resolved:.3e} m/s)")
+        } else {
+            String::new()
+        }
+    ));
+    let g = s.domain.gravity.length();
+    if g > 0.0 {
+        causes.push(format!(
+            "gravity: |domain.gravity| = {g:.3e} m/s² adds {:.3e} m/s per flow step",
+            g * dt
+        ));
+    }
+    if let Some(gas) = gas {
+        let mu = gas.gas.config.viscosity;
+        let tau = engine
+            .particles()
+            .map(|p| p.mass / (3.0 * std::f64::consts::PI * mu * 2.0 * p.radius))
+            .fold(f64::INFINITY, f64::min);
+        causes.push(format!(
+            "gas drag: the shortest particle relaxation time is {tau:.3e} s (Stokes) against time.dt_flow = {dt:?} s{}",
+            if tau < dt {
+                " (shorter: the drag kick over a flow step can overshoot)"
+            } else {
+                ""
+            }
+        ));
+        causes.push(format!(
+            "gas: the largest Courant number so far is {:.3}",
+            gas.totals.max_courant
+        ));
+    }
+    format!(
+        "particle {} {what} at t = {:?} s: position ({:e}, {:e}, {:e}) m, velocity ({:e}, {:e}, {:e}) m/s, radius {:e} m. Likely causes, with this run's values: {}. If none stands out, this is an engine fault: please report it with the scenario",
+        bad.id,
+        engine.time(),
+        bad.position.x,
+        bad.position.y,
+        bad.position.z,
+        bad.velocity.x,
+        bad.velocity.y,
+        bad.velocity.z,
+        bad.radius,
+        causes.join("; ")
+    )
 }
 
 /// Binary snapshots for `edpm analyse`, with the collision tally of each
@@ -792,9 +1092,7 @@ impl AnalysisSnapshots {
         snapshot.write(&self.dir.join(format!("{:06}.bin", self.count)))?;
         self.tally.reset();
         self.count += 1;
-        while self.next <= t * (1.0 + 1e-9) {
-            self.next += self.interval;
-        }
+        self.next = next_multiple(t, self.interval);
         Ok(())
     }
 }
@@ -852,9 +1150,7 @@ impl Snapshots {
             series.write()?;
         }
         self.count += 1;
-        while self.next <= t * (1.0 + 1e-9) {
-            self.next += self.interval;
-        }
+        self.next = next_multiple(t, self.interval);
         Ok(())
     }
 }

@@ -1,11 +1,13 @@
 //! The Python reader `tools/edpm_log.py` against a log written by `edpm run`.
 //!
-//! Needs python3 with numpy. Without them the test fails, unless
-//! `EDPM_ALLOW_NO_NUMPY=1` is set, in which case it is skipped with a note.
+//! Needs python3 only. The standard-library (`struct`) path of the reader is
+//! always tested; the numpy path is tested too where python3 has numpy, and
+//! otherwise skipped with a note on stderr (`cargo test -- --nocapture`
+//! not needed: the note bypasses the test harness's capture).
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
-use std::process::Command;
+use std::process::{Command, Output};
 
 use edpm::eventlog::{Block, LogReader};
 
@@ -17,6 +19,11 @@ fn numpy_available() -> bool {
         .args(["-c", "import numpy"])
         .output()
         .is_ok_and(|o| o.status.success())
+}
+
+/// A note on the process's stderr: libtest would capture eprintln!.
+fn note(text: &str) {
+    let _ = writeln!(std::io::stderr(), "python_reader: {text}");
 }
 
 fn json_u64(v: &serde_json::Value, key: &str) -> u64 {
@@ -42,30 +49,39 @@ fn rust_counts(log: &Path) -> (u64, u64) {
     (records, checkpoints)
 }
 
-#[test]
-fn python_reader_agrees_with_the_run_summary() {
-    if !numpy_available() {
-        // Straight to the process's stderr: libtest would capture eprintln!,
-        // hiding the note when the test is allowed to pass.
-        let _ = writeln!(
-            std::io::stderr(),
-            "python_reader: python3 with numpy is required to test tools/edpm_log.py \
-             (install it with `pip install numpy`, or set EDPM_ALLOW_NO_NUMPY=1 to skip this test)"
-        );
-        assert_eq!(
-            std::env::var("EDPM_ALLOW_NO_NUMPY").as_deref(),
-            Ok("1"),
-            "python3 or numpy is missing and EDPM_ALLOW_NO_NUMPY=1 is not set"
-        );
-        return;
-    }
+fn python(args: &[&str], log: &Path) -> Output {
+    Command::new("python3")
+        .current_dir(MANIFEST_DIR)
+        .arg("tools/edpm_log.py")
+        .args(args)
+        .arg(log)
+        .output()
+        .expect("python3 is required to test tools/edpm_log.py")
+}
 
-    let dir: PathBuf =
-        std::env::temp_dir().join(format!("edpm-python-reader-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
+/// The reader's one-line JSON summary of `log`.
+fn summary_line(args: &[&str], log: &Path) -> serde_json::Value {
+    let py = python(args, log);
+    let stderr = String::from_utf8_lossy(&py.stderr);
+    assert!(
+        py.status.success(),
+        "tools/edpm_log.py {args:?} failed:\n{stderr}"
+    );
+    assert!(
+        stderr.trim().is_empty(),
+        "tools/edpm_log.py {args:?} warned:\n{stderr}"
+    );
+    let stdout = String::from_utf8_lossy(&py.stdout);
+    assert_eq!(
+        stdout.lines().count(),
+        1,
+        "one summary line expected, got:\n{stdout}"
+    );
+    serde_json::from_str(stdout.trim()).expect("the summary is JSON")
+}
+
+fn logged_run(dir: &Path) -> PathBuf {
     let log = dir.join("run.log");
-
     let run = Command::new(env!("CARGO_BIN_EXE_edpm"))
         .current_dir(MANIFEST_DIR)
         .args([
@@ -76,7 +92,7 @@ fn python_reader_agrees_with_the_run_summary() {
             "--quiet",
         ])
         .arg("--out")
-        .arg(&dir)
+        .arg(dir)
         .arg("--log")
         .arg(&log)
         .output()
@@ -86,31 +102,27 @@ fn python_reader_agrees_with_the_run_summary() {
         "edpm run failed:\n{}",
         String::from_utf8_lossy(&run.stderr)
     );
+    log
+}
 
-    let py = Command::new("python3")
-        .current_dir(MANIFEST_DIR)
-        .arg("tools/edpm_log.py")
-        .arg(&log)
-        .output()
-        .expect("running python3");
-    let stderr = String::from_utf8_lossy(&py.stderr);
-    assert!(py.status.success(), "tools/edpm_log.py failed:\n{stderr}");
-    assert!(
-        stderr.trim().is_empty(),
-        "tools/edpm_log.py warned:\n{stderr}"
-    );
-    let stdout = String::from_utf8_lossy(&py.stdout);
-    assert_eq!(
-        stdout.lines().count(),
-        1,
-        "one summary line expected, got:\n{stdout}"
-    );
-    let got: serde_json::Value = serde_json::from_str(stdout.trim()).expect("the summary is JSON");
+fn fresh_dir(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("edpm-python-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
 
+#[test]
+fn python_reader_agrees_with_the_run_summary() {
+    let dir = fresh_dir("reader");
+    let log = logged_run(&dir);
     let summary: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
     let counters = &summary["counters"];
+    let (records, checkpoints) = rust_counts(&log);
 
+    let got = summary_line(&["--no-numpy"], &log);
+    assert_eq!(got["reader"], "struct", "{got}");
     assert_eq!(json_u64(&got, "version"), 1);
     assert!(json_u64(&got, "records") > 0, "no records in {got}");
     assert!(
@@ -125,8 +137,6 @@ fn python_reader_agrees_with_the_run_summary() {
         json_u64(&got, "wall_collisions"),
         json_u64(counters, "wall_collisions")
     );
-
-    let (records, checkpoints) = rust_counts(&log);
     assert_eq!(
         json_u64(&got, "records"),
         records,
@@ -144,5 +154,96 @@ fn python_reader_agrees_with_the_run_summary() {
         "t_last {t_last} is not the end time 0.01"
     );
 
+    if numpy_available() {
+        // The numpy path: the same summary, and every field of every table
+        // equal to the standard-library path's.
+        let with_numpy = summary_line(&[], &log);
+        assert_eq!(with_numpy["reader"], "numpy", "{with_numpy}");
+        let mut a = with_numpy.clone();
+        let mut b = got.clone();
+        a["reader"] = serde_json::Value::Null;
+        b["reader"] = serde_json::Value::Null;
+        assert_eq!(a, b, "numpy and struct paths disagree");
+        let script = r#"
+import sys
+sys.path.insert(0, "tools")
+import numpy as np
+import edpm_log as e
+a = e.read_log(sys.argv[1], use_numpy=True)
+b = e.read_log(sys.argv[1], use_numpy=False)
+def same(x, y, what):
+    assert np.array_equal(np.asarray(x), np.asarray(y)), what
+for f, _ in e.RECORD_FIELDS:
+    same(a["records"][f], b["records"][f], "records." + f)
+for f, _ in e.INITIAL_FIELDS:
+    same(a["initial"][f], b["initial"][f], "initial." + f)
+same(a["densities"], b["densities"], "densities")
+assert len(a["checkpoints"]) == len(b["checkpoints"])
+for ca, cb in zip(a["checkpoints"], b["checkpoints"]):
+    assert ca[:3] == cb[:3], "checkpoint header"
+    for f, _ in e.PARTICLE_FIELDS:
+        same(ca[3][f], cb[3][f], "checkpoint particles." + f)
+print("identical")
+"#;
+        let o = Command::new("python3")
+            .current_dir(MANIFEST_DIR)
+            .args(["-c", script])
+            .arg(&log)
+            .output()
+            .unwrap();
+        assert!(
+            o.status.success() && String::from_utf8_lossy(&o.stdout).trim() == "identical",
+            "numpy and struct tables differ:\n{}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+    } else {
+        note(
+            "SKIPPED the numpy path of tools/edpm_log.py: python3 has no numpy \
+             (the standard-library path was tested; `pip install numpy` to test both)",
+        );
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// Damaged logs: a flipped payload byte is a checksum error (exit 1), a
+/// cut-off final block a warning with the records before it, in each path.
+#[test]
+fn python_reader_reports_damaged_logs() {
+    let dir = fresh_dir("damaged");
+    let log = logged_run(&dir);
+    let bytes = std::fs::read(&log).unwrap();
+    let mut paths: Vec<&[&str]> = vec![&["--no-numpy"]];
+    if numpy_available() {
+        paths.push(&[]);
+    } else {
+        note("SKIPPED the numpy path of the damaged-log checks: python3 has no numpy");
+    }
+
+    // The first block starts after the 32-byte file header and its payload.
+    let header_len = u32::from_le_bytes(bytes[12..16].try_into().unwrap()) as usize;
+    let first_block = 32 + header_len;
+    let mut corrupt = bytes.clone();
+    corrupt[first_block + 24 + 5] ^= 0x40;
+    let corrupt_path = dir.join("corrupt.log");
+    std::fs::write(&corrupt_path, &corrupt).unwrap();
+    let cut_path = dir.join("cut.log");
+    std::fs::write(&cut_path, &bytes[..bytes.len() - 7]).unwrap();
+
+    for args in paths {
+        let o = python(args, &corrupt_path);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{args:?}: {err}");
+        assert!(
+            err.contains(&format!(
+                "checksum mismatch in block at byte offset {first_block}"
+            )),
+            "{args:?}: {err}"
+        );
+
+        let o = python(args, &cut_path);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(o.status.success(), "{args:?}: {err}");
+        assert!(err.contains("truncated log"), "{args:?}: {err}");
+    }
     std::fs::remove_dir_all(&dir).unwrap();
 }

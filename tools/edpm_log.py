@@ -5,9 +5,17 @@
     log = read_log("run.log")
     log["records"]["kind"], log["checkpoints"][-1], log["initial"]["pos"], ...
 
-As a script, prints a one-line JSON summary of a log:
+With numpy installed, tables (records, checkpoint particles, initial
+particles) are numpy structured arrays and `densities` is an array.
+Without numpy, or with `read_log(path, use_numpy=False)`, the standard
+library alone (`struct`) decodes the same file into columns: each table is
+a dict from field name to a list (one entry per row; 3- and 9-vectors are
+tuples), so `log["records"]["kind"]` works either way.
 
-    python3 tools/edpm_log.py run.log
+As a script, prints a one-line JSON summary of a log (`--no-numpy` forces
+the standard-library path):
+
+    python3 tools/edpm_log.py [--no-numpy] run.log
 """
 
 import json
@@ -16,7 +24,10 @@ import sys
 import warnings
 import zlib
 
-import numpy as np
+try:
+    import numpy as np
+except ImportError:  # the standard-library path below needs nothing else
+    np = None
 
 FORMAT_VERSION = 1
 FILE_MAGIC = b"EDPMLOG\0"
@@ -34,25 +45,63 @@ BRANCH_NAMES = {0: "smooth", 1: "sticking", 2: "sliding"}
 AXIS_BOUNDARIES = ("walls", "periodic", "frozen")
 OUTLET_MODES = ("remove", "reinsert")
 
-RECORD_DTYPE = np.dtype([
-    ("kind", "<u4"), ("aux", "<u4"), ("time", "<f8"), ("clock", "<f8"),
-    ("a", "<u8"), ("b", "<u8"), ("state_a", "<f8", (9,)), ("state_b", "<f8", (9,)),
-])
+RECORD_BYTES = 184
 # A checkpoint particle: 96 bytes.
 PARTICLE_BYTES = 96
-PARTICLE_DTYPE = np.dtype({
-    "names": ["id", "material", "reserved", "radius", "state"],
-    "formats": ["<u8", "<u4", "<u4", "<f8", ("<f8", (9,))],
-    "offsets": [0, 8, 12, 16, 24],
-    "itemsize": PARTICLE_BYTES,
-})
 # One entry of LogHeader.initial: (id, NewParticle), packed (90 bytes).
-INITIAL_DTYPE = np.dtype([
-    ("id", "<u8"), ("pos", "<f8", (3,)), ("vel", "<f8", (3,)),
-    ("omega", "<f8", (3,)), ("radius", "<f8"), ("material", "<u2"),
-])
-assert RECORD_DTYPE.itemsize == 184 and PARTICLE_DTYPE.itemsize == 96
-assert INITIAL_DTYPE.itemsize == 90
+INITIAL_BYTES = 90
+
+# Standard-library layouts: (struct format, [(field, number of values)]).
+RECORD_STRUCT = struct.Struct("<IIddQQ9d9d")
+RECORD_FIELDS = [("kind", 1), ("aux", 1), ("time", 1), ("clock", 1),
+                 ("a", 1), ("b", 1), ("state_a", 9), ("state_b", 9)]
+PARTICLE_STRUCT = struct.Struct("<QIId9d")
+PARTICLE_FIELDS = [("id", 1), ("material", 1), ("reserved", 1), ("radius", 1), ("state", 9)]
+INITIAL_STRUCT = struct.Struct("<Q3d3d3ddH")
+INITIAL_FIELDS = [("id", 1), ("pos", 3), ("vel", 3), ("omega", 3), ("radius", 1),
+                  ("material", 1)]
+assert RECORD_STRUCT.size == RECORD_BYTES and PARTICLE_STRUCT.size == PARTICLE_BYTES
+assert INITIAL_STRUCT.size == INITIAL_BYTES
+
+if np is not None:
+    RECORD_DTYPE = np.dtype([
+        ("kind", "<u4"), ("aux", "<u4"), ("time", "<f8"), ("clock", "<f8"),
+        ("a", "<u8"), ("b", "<u8"), ("state_a", "<f8", (9,)), ("state_b", "<f8", (9,)),
+    ])
+    PARTICLE_DTYPE = np.dtype({
+        "names": ["id", "material", "reserved", "radius", "state"],
+        "formats": ["<u8", "<u4", "<u4", "<f8", ("<f8", (9,))],
+        "offsets": [0, 8, 12, 16, 24],
+        "itemsize": PARTICLE_BYTES,
+    })
+    INITIAL_DTYPE = np.dtype([
+        ("id", "<u8"), ("pos", "<f8", (3,)), ("vel", "<f8", (3,)),
+        ("omega", "<f8", (3,)), ("radius", "<f8"), ("material", "<u2"),
+    ])
+    assert RECORD_DTYPE.itemsize == RECORD_BYTES and PARTICLE_DTYPE.itemsize == PARTICLE_BYTES
+    assert INITIAL_DTYPE.itemsize == INITIAL_BYTES
+
+
+def _columns(layout, fields, data):
+    """Decodes packed rows of `layout` into {field: list}; vectors as tuples."""
+    rows = list(layout.iter_unpack(data))
+    out = {}
+    at = 0
+    for name, width in fields:
+        if width == 1:
+            out[name] = [row[at] for row in rows]
+        else:
+            out[name] = [tuple(row[at:at + width]) for row in rows]
+        at += width
+    return out
+
+
+def _concat_columns(tables, fields):
+    out = {name: [] for name, _ in fields}
+    for t in tables:
+        for name, _ in fields:
+            out[name].extend(t[name])
+    return out
 
 
 class LogError(ValueError):
@@ -62,8 +111,8 @@ class LogError(ValueError):
 class _Cursor:
     """Sequential decoder of bincode (fixed-int, little-endian) values."""
 
-    def __init__(self, data):
-        self.data, self.at = data, 0
+    def __init__(self, data, use_numpy):
+        self.data, self.at, self.use_numpy = data, 0, use_numpy
 
     def take(self, n):
         if self.at + n > len(self.data):
@@ -78,13 +127,21 @@ class _Cursor:
     def string(self):
         return self.take(self.scalar("Q")).decode("utf-8")
 
-    def array(self, dtype, count):
-        dtype = np.dtype(dtype)
-        return np.frombuffer(self.take(dtype.itemsize * count), dtype).copy()
+    def floats(self, count):
+        data = self.take(8 * count)
+        if self.use_numpy:
+            return np.frombuffer(data, "<f8").copy()
+        return list(struct.unpack(f"<{count}d", data))
+
+    def initial(self, count):
+        data = self.take(INITIAL_BYTES * count)
+        if self.use_numpy:
+            return np.frombuffer(data, INITIAL_DTYPE).copy()
+        return _columns(INITIAL_STRUCT, INITIAL_FIELDS, data)
 
 
-def _decode_header(payload):
-    c = _Cursor(payload)
+def _decode_header(payload, use_numpy):
+    c = _Cursor(payload, use_numpy)
     h = {"writer": c.string(), "scenario_text": c.string()}
     h["overrides"] = [c.string() for _ in range(c.scalar("Q"))]
     h["seed"] = c.scalar("Q")
@@ -96,24 +153,32 @@ def _decode_header(payload):
     if c.scalar("B") == 1:
         domain["outlet"] = {"axis": c.scalar("Q"), "mode": OUTLET_MODES[c.scalar("I")]}
     h["domain"] = domain
-    h["densities"] = c.array("<f8", c.scalar("Q"))
-    h["initial"] = c.array(INITIAL_DTYPE, c.scalar("Q"))
+    h["densities"] = c.floats(c.scalar("Q"))
+    h["initial"] = c.initial(c.scalar("Q"))
     if c.at != len(payload):
         raise LogError(f"file header payload has {len(payload) - c.at} unexpected trailing bytes")
     return h
 
 
-def read_log(path):
+def read_log(path, use_numpy=None):
     """Reads a whole log: header fields, records, checkpoints.
 
     Returns a dict with the decoded LogHeader fields (writer, scenario_text,
     overrides, seed, dt_flow, domain, densities, initial), plus version,
-    records (RECORD_DTYPE array over all record blocks, in file order),
-    checkpoints (list of (time, clock, step, PARTICLE_DTYPE array)) and
-    truncated_at (byte offset of an incomplete final block, or None).
+    records (all record blocks, in file order), checkpoints (list of
+    (time, clock, step, particles)), truncated_at (byte offset of an
+    incomplete final block, or None) and reader ("numpy" or "struct").
+    Tables are numpy structured arrays (RECORD_DTYPE, PARTICLE_DTYPE,
+    INITIAL_DTYPE) when numpy is used, else dicts of column lists.
+    use_numpy: None uses numpy when it is installed; False never does;
+    True requires it.
     Raises LogError on a bad magic, an unsupported version, a checksum
     mismatch or a malformed block.
     """
+    if use_numpy is None:
+        use_numpy = np is not None
+    if use_numpy and np is None:
+        raise ImportError("numpy is not installed; use read_log(path, use_numpy=False)")
     with open(path, "rb") as f:
         data = memoryview(f.read())  # slices of a memoryview do not copy
     if len(data) < FILE_HEADER_BYTES or bytes(data[:8]) != FILE_MAGIC:
@@ -129,8 +194,8 @@ def read_log(path):
     if zlib.crc32(payload) != crc:
         raise LogError(f"{path}: checksum mismatch in file header at byte offset {FILE_HEADER_BYTES}")
     try:
-        log = {"version": version, **_decode_header(bytes(payload))}
-    except (IndexError, UnicodeDecodeError) as e:
+        log = {"version": version, **_decode_header(bytes(payload), use_numpy)}
+    except (IndexError, UnicodeDecodeError, struct.error) as e:
         raise LogError(f"{path}: malformed file header ({e})") from None
 
     record_blocks, checkpoints, truncated_at = [], [], None
@@ -144,7 +209,7 @@ def read_log(path):
             raise LogError(f"{path}: malformed block header at byte offset {at}")
         # Kind, count and length must agree before a short file counts as
         # truncation: the block header has no checksum of its own.
-        if not ((kind == KIND_RECORDS and length == count * RECORD_DTYPE.itemsize) or
+        if not ((kind == KIND_RECORDS and length == count * RECORD_BYTES) or
                 (kind == KIND_CHECKPOINT and length == CHECKPOINT_HEADER_BYTES + count * PARTICLE_BYTES)):
             raise LogError(f"{path}: malformed block (unknown kind or size) at byte offset {at}")
         body = at + BLOCK_HEADER_BYTES
@@ -156,19 +221,37 @@ def read_log(path):
             raise LogError(f"{path}: checksum mismatch in block at byte offset {at}: "
                            "the log is corrupted from there on")
         if kind == KIND_RECORDS:
-            record_blocks.append(np.frombuffer(payload, RECORD_DTYPE))
+            if use_numpy:
+                record_blocks.append(np.frombuffer(payload, RECORD_DTYPE))
+            else:
+                record_blocks.append(_columns(RECORD_STRUCT, RECORD_FIELDS, payload))
         else:
             time, clock, step = struct.unpack_from("<2dQ", payload)
-            particles = np.frombuffer(payload, PARTICLE_DTYPE, offset=CHECKPOINT_HEADER_BYTES).copy()
+            body_bytes = payload[CHECKPOINT_HEADER_BYTES:]
+            if use_numpy:
+                particles = np.frombuffer(body_bytes, PARTICLE_DTYPE).copy()
+            else:
+                particles = _columns(PARTICLE_STRUCT, PARTICLE_FIELDS, body_bytes)
             checkpoints.append((time, clock, step, particles))
         at = body + length
     if truncated_at is not None:
         warnings.warn(f"{path}: truncated log, the incomplete block at byte offset "
                       f"{truncated_at} and everything after it are ignored", stacklevel=2)
-    log["records"] = np.concatenate(record_blocks) if record_blocks else np.zeros(0, RECORD_DTYPE)
+    if use_numpy:
+        log["records"] = (np.concatenate(record_blocks) if record_blocks
+                          else np.zeros(0, RECORD_DTYPE))
+    else:
+        log["records"] = _concat_columns(record_blocks, RECORD_FIELDS)
     log["checkpoints"] = checkpoints
     log["truncated_at"] = truncated_at
+    log["reader"] = "numpy" if use_numpy else "struct"
     return log
+
+
+def _count(values, wanted):
+    if np is not None and isinstance(values, np.ndarray):
+        return int(np.count_nonzero(values == wanted))
+    return sum(1 for v in values if v == wanted)
 
 
 def summary(log):
@@ -178,20 +261,25 @@ def summary(log):
     times += [cp[0] for cp in log["checkpoints"][-1:]]
     return {
         "version": log["version"],
+        "reader": log["reader"],
         "records": int(len(kinds)),
-        "pair_collisions": int(np.count_nonzero(kinds == PAIR)),
-        "wall_collisions": int(np.count_nonzero(kinds == WALL)),
+        "pair_collisions": _count(kinds, PAIR),
+        "wall_collisions": _count(kinds, WALL),
         "checkpoints": len(log["checkpoints"]),
         "t_last": max(times) if times else None,
     }
 
 
 def main(argv):
-    if len(argv) != 2:
-        print(f"usage: {argv[0]} LOG", file=sys.stderr)
+    args = argv[1:]
+    use_numpy = None
+    if args[:1] == ["--no-numpy"]:
+        use_numpy, args = False, args[1:]
+    if len(args) != 1:
+        print(f"usage: {argv[0]} [--no-numpy] LOG", file=sys.stderr)
         return 2
     try:
-        log = read_log(argv[1])
+        log = read_log(args[0], use_numpy)
     except (LogError, OSError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 1

@@ -28,8 +28,9 @@ use glam::DVec3;
 use std::f64::consts::PI;
 
 /// Maximum number of cells (or faces) a cube may overlap along one axis. A
-/// cube of side s ≤ (MAX_SPAN − 1)·h always fits; wider cubes panic (the
-/// scenario should keep the porous-cube side below 11 cells).
+/// cube of side s ≤ (MAX_SPAN − 1)·h always fits; wider cubes panic.
+/// Scenario validation refuses gas cells smaller than that for the largest
+/// particle (`gas.cells` against the diameters and `gas.cube_factor`).
 pub const MAX_SPAN: usize = 6;
 
 /// (π/6)^{1/3}: side of the cube of equal volume per unit diameter (Eq. 35).
@@ -125,8 +126,8 @@ impl AxisWeights {
     fn push(&mut self, offset: usize, weight: f64) {
         assert!(
             self.len < MAX_SPAN,
-            "particle cube overlaps more than {MAX_SPAN} cells along one axis; \
-             use coarser cells or a smaller porous-cube factor"
+            "a particle's mapping cube overlaps more than {MAX_SPAN} gas cells along one axis: \
+             the gas cells are too small for the particle (scenario validation refuses this)"
         );
         self.offset[self.len] = offset;
         self.weight[self.len] = weight;
@@ -196,7 +197,9 @@ fn axis_overlap_into(
     let (mut a, mut b) = (t - half, t + half);
     // Fast path (the common case of cells wider than particles): the
     // segment lies inside the domain and touches at most two intervals.
-    if half > 0.0 && half <= 0.5 {
+    // A segment too short to resolve at `t` (b == a) takes the general
+    // path's point-particle branch.
+    if half > 0.0 && half <= 0.5 && b > a {
         let inside = match clip {
             Some((lo, hi)) => a >= lo && b <= hi,
             None => true,
@@ -650,6 +653,49 @@ mod tests {
         // Point particle.
         let w = collect(&cell_weights(&g, centre, 0.0));
         assert_eq!(w, vec![(g.cell_index(c), 1.0)]);
+    }
+
+    /// Regression: a particle far smaller than the round-off of its
+    /// position (1e-20 m at x = 0.3 m) sitting on the upper wall mapped to
+    /// cell n (out of bounds) with NaN weights. Its weights must be valid
+    /// indices with finite weights summing to 1, on walled and periodic
+    /// axes, for cells and faces (at the origin, where such a particle is
+    /// resolved, it may straddle a face).
+    #[test]
+    fn unresolvable_tiny_particle_maps_to_one_valid_cell() {
+        for periodic in [[false; 3], [true; 3]] {
+            let g = GridGeometry::new(
+                DVec3::ZERO,
+                DVec3::new(0.3, 0.2, 0.1),
+                [3, 2, 1],
+                periodic,
+                false,
+            );
+            for pos in [
+                DVec3::new(0.3, 0.2, 0.1),
+                DVec3::new(0.1, 0.1, 0.05),
+                DVec3::ZERO,
+            ] {
+                let side = EQUAL_VOLUME_CUBE * 1e-20;
+                let valid = |w: &[(usize, f64)], len: usize| {
+                    let sum: f64 = w.iter().map(|e| e.1).sum();
+                    w.iter().all(|&(i, x)| i < len && x.is_finite())
+                        && (w.is_empty() || (sum - 1.0).abs() < 1e-12)
+                };
+                let w = collect(&cell_weights(&g, pos, side));
+                assert!(
+                    !w.is_empty() && valid(&w, g.cells()),
+                    "{pos} {periodic:?}: {w:?}"
+                );
+                if pos.x == 0.3 {
+                    assert_eq!(w.len(), 1, "{pos} {periodic:?}: {w:?}");
+                }
+                for a in 0..3 {
+                    let w = collect(&face_weights(&g, a, pos, side));
+                    assert!(valid(&w, g.faces(a)), "{pos} {periodic:?} axis {a}: {w:?}");
+                }
+            }
+        }
     }
 
     #[test]

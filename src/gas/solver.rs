@@ -98,16 +98,19 @@ pub struct StepStats {
     pub mass_residual: f64,
 }
 
-/// Why a gas step failed.
+/// Why a gas step failed. The messages state what failed; `edpm run` adds
+/// the likely causes with the scenario's values (see `run.rs`). The
+/// solver's error is part of the message, not a `source`, so that it is
+/// printed once.
 #[derive(Debug, thiserror::Error)]
 pub enum GasError {
-    #[error("pressure solve failed at t = {time} s: {source}")]
+    #[error("pressure solve failed at t = {time} s: {error}")]
     Linear {
         time: f64,
-        source: super::linear::SolveError,
+        error: super::linear::SolveError,
     },
     #[error(
-        "gas step at t = {time} s did not converge: mass residual {residual:e} after {iterations} iterations (tolerance {tolerance:e}); reduce time.dt_flow"
+        "gas step at t = {time} s did not converge: mass residual {residual:e} after {iterations} iterations (tolerance {tolerance:e})"
     )]
     NotConverged {
         time: f64,
@@ -116,7 +119,7 @@ pub enum GasError {
         tolerance: f64,
     },
     #[error(
-        "gas solution is not finite at t = {time} s (cell {cell:?}); reduce time.dt_flow (convective Courant number {courant:.2})"
+        "gas solution is not finite at t = {time} s (cell {cell:?}; convective Courant number {courant:.2})"
     )]
     NotFinite {
         time: f64,
@@ -744,12 +747,7 @@ impl GasPhase {
                     iterations,
                     relative_residual,
                 }) if relative_residual < 0.5 => iterations,
-                Err(source) => {
-                    return Err(GasError::Linear {
-                        time: t_new,
-                        source,
-                    });
-                }
+                Err(error) => return Err(GasError::Linear { time: t_new, error }),
             };
             stats.linear_iterations += iterations;
             stats.outer_iterations += 1;

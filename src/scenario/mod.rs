@@ -12,6 +12,7 @@
 
 mod diameter;
 mod gas;
+pub mod limits;
 mod locate;
 mod overrides;
 mod raw;
@@ -396,6 +397,9 @@ pub struct Scenario {
     pub output: OutputSettings,
     /// `[gas]`: the gas phase; `None` for a dry (particles-only) run.
     pub gas: Option<crate::gas::GasConfig>,
+    /// Things that run but may not mean what was intended (printed by
+    /// `edpm run`), each starting with the field it concerns.
+    pub warnings: Vec<String>,
 }
 
 impl Scenario {

@@ -11,8 +11,8 @@ use super::raw::{self, AxisName, RawAxis, RawDiameter, RawFluxBasis, RawInt, Raw
 use super::{
     AxisBoundary, Boundaries, CollisionSettings, ContactTable, Diameter, Domain, EngineSettings,
     FluxBasis, InitialState, Inlet, Material, NeighbourChoice, Outlet, OutletMode, OutputSettings,
-    Placement, Population, Region, Scenario, ScenarioError, Splitting, TimeSettings, locate,
-    overrides,
+    Placement, Population, Region, Scenario, ScenarioError, Splitting, TimeSettings, limits,
+    locate, overrides,
 };
 use crate::collision::ContactParams;
 
@@ -228,7 +228,20 @@ pub(crate) fn validate(ctx: &Ctx, raw: RawScenario) -> R<Scenario> {
             "materials",
         )?;
         let density = match m.density {
-            Some(rho) => Some(ctx.positive(&format!("{path}.density"), rho)?),
+            Some(rho) => {
+                let (lo, hi) = limits::DENSITY_RANGE;
+                let p = format!("{path}.density");
+                ctx.positive(&p, rho)?;
+                if !(lo..=hi).contains(&rho) {
+                    return Err(ctx.err(
+                        p,
+                        format!(
+                            "must be in [{lo:?}, {hi:?}] kg/m³ (aerogels are above 0.1, osmium is 22 600), got {rho:?}"
+                        ),
+                    ));
+                }
+                Some(rho)
+            }
             None => None,
         };
         material_index.insert(m.name.clone(), i as u16);
@@ -816,38 +829,36 @@ pub(crate) fn validate(ctx: &Ctx, raw: RawScenario) -> R<Scenario> {
         ),
         None => (None, None, None, None),
     };
-    let sample_interval = sample_interval.unwrap_or(t_end / 100.0);
-    if !(sample_interval.is_finite() && sample_interval > 0.0) {
-        return Err(ctx.err(
-            "output.sample_interval",
-            format!("must be > 0 s and finite, got {sample_interval:?}"),
-        ));
-    }
-    // An interval longer than the run (e.g. after --t-end shortened it)
-    // samples at the start and the end only.
-    let sample_interval = sample_interval.min(t_end);
-    let vtk_interval = match vtk_interval {
-        Some(v) if !(v.is_finite() && v > 0.0) => {
-            return Err(ctx.err(
-                "output.vtk_interval",
-                format!("must be > 0 s and finite, got {v:?}"),
-            ));
+    // Samples and snapshots are taken at the ends of flow steps: intervals
+    // are at least one flow step, and their number is bounded.
+    let interval = |path: &str, v: f64, max_count: f64| -> R<f64> {
+        if !(v.is_finite() && v > 0.0) {
+            return Err(ctx.err(path, format!("must be > 0 s and finite, got {v:?}")));
         }
-        // Clamped like sample_interval: snapshots at the start and the end.
-        Some(v) => Some(v.min(t_end)),
-        None => None,
-    };
-
-    let snapshot_interval = match snapshot_interval {
-        Some(v) if !(v.is_finite() && v > 0.0) => {
-            return Err(ctx.err(
-                "output.snapshot_interval",
-                format!("must be > 0 s and finite, got {v:?}"),
-            ));
+        let least = dt_flow.max(t_end / max_count);
+        if v < least {
+            let why = if least == dt_flow {
+                "at least time.dt_flow: samples and snapshots are taken at the ends of flow steps"
+                    .to_string()
+            } else {
+                format!("at most {max_count:e} per run of t_end = {t_end:?} s")
+            };
+            return Err(ctx.err(path, format!("must be >= {least:e} s ({why}), got {v:?}")));
         }
-        Some(v) => Some(v.min(t_end)),
-        None => None,
+        // An interval longer than the run (e.g. after --t-end shortened it)
+        // gives output at the start and the end only.
+        Ok(v.min(t_end))
     };
+    let sample_interval = match sample_interval {
+        Some(v) => interval("output.sample_interval", v, limits::MAX_SAMPLES)?,
+        None => (t_end / 100.0).max(dt_flow),
+    };
+    let vtk_interval = vtk_interval
+        .map(|v| interval("output.vtk_interval", v, limits::MAX_SNAPSHOTS))
+        .transpose()?;
+    let snapshot_interval = snapshot_interval
+        .map(|v| interval("output.snapshot_interval", v, limits::MAX_SNAPSHOTS))
+        .transpose()?;
     let tally_cells = match tally_cells {
         Some(cells) => {
             let mut n = [1usize; 3];
@@ -882,7 +893,7 @@ pub(crate) fn validate(ctx: &Ctx, raw: RawScenario) -> R<Scenario> {
         ));
     }
 
-    Ok(Scenario {
+    let mut scenario = Scenario {
         name: ctx.file.to_string(),
         source_text: String::new(),
         overrides: Vec::new(),
@@ -907,7 +918,10 @@ pub(crate) fn validate(ctx: &Ctx, raw: RawScenario) -> R<Scenario> {
             tally_cells,
         },
         gas,
-    })
+        warnings: Vec::new(),
+    };
+    scenario.warnings = limits::check(ctx, &scenario)?;
+    Ok(scenario)
 }
 
 fn placement_name(p: Placement) -> &'static str {

@@ -1,0 +1,618 @@
+//! Regression tests of issue 14: one per class of bad input, extreme value
+//! or fault. Each must give a clear error naming the file, field (or option,
+//! or particle) and allowed range, never a panic, abort, hang or a silent
+//! wrong result. The exact text fragments asserted are the ones a user
+//! needs to act on.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use edpm::engine::{Engine, EngineConfig};
+use edpm::materials::MaterialTable;
+use edpm::particles::NewParticle;
+use edpm::queue::IndexedHeap;
+use edpm::run::{RunOptions, run_scenario_with};
+use edpm::scenario::Scenario;
+use glam::DVec3;
+
+const EDPM: &str = env!("CARGO_BIN_EXE_edpm");
+const ROOT: &str = env!("CARGO_MANIFEST_DIR");
+
+fn fresh_dir(name: &str) -> PathBuf {
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("robustness-{name}"));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+fn edpm(args: &[&str]) -> Output {
+    Command::new(EDPM)
+        .current_dir(ROOT)
+        .args(args)
+        .output()
+        .expect("edpm runs")
+}
+
+/// `edpm run SCENARIO --quiet --out DIR ARGS`.
+fn run(scenario: &str, dir: &Path, args: &[&str]) -> Output {
+    let mut all = vec!["run", scenario, "--quiet", "--out", dir.to_str().unwrap()];
+    all.extend_from_slice(args);
+    edpm(&all)
+}
+
+/// Non-zero exit (1, not a panic's 101 or a signal), one `edpm: error:`
+/// line holding every fragment. Returns the message.
+fn clean_error(o: &Output, fragments: &[&str]) -> String {
+    let err = String::from_utf8_lossy(&o.stderr).into_owned();
+    assert_eq!(o.status.code(), Some(1), "expected a clean error: {err}");
+    assert!(!err.contains("panicked"), "{err}");
+    let lines: Vec<&str> = err
+        .lines()
+        .filter(|l| l.starts_with("edpm: error:"))
+        .collect();
+    assert_eq!(lines.len(), 1, "one error line expected: {err}");
+    for f in fragments {
+        assert!(lines[0].contains(f), "{f:?} missing from: {}", lines[0]);
+    }
+    lines[0].to_string()
+}
+
+fn scenario_error(file: &str, sets: &[&str]) -> String {
+    let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
+    Scenario::from_file_with_overrides(Path::new(ROOT).join("scenarios").join(file), &sets)
+        .expect_err("validation must refuse this")
+        .to_string()
+}
+
+fn assert_contains(text: &str, fragments: &[&str]) {
+    for f in fragments {
+        assert!(text.contains(f), "{f:?} missing from: {text}");
+    }
+}
+
+fn summary(dir: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap()
+}
+
+// ---------------------------------------------------------------------------
+// Panics.
+
+/// `--log-checkpoint-steps 0` divided by zero.
+#[test]
+fn zero_checkpoint_interval_is_refused() {
+    let dir = fresh_dir("checkpoint-steps");
+    let log = dir.join("run.log");
+    let o = run(
+        "scenarios/box-walls.toml",
+        &dir,
+        &[
+            "--t-end",
+            "0.001",
+            "--log",
+            log.to_str().unwrap(),
+            "--log-checkpoint-steps",
+            "0",
+        ],
+    );
+    clean_error(
+        &o,
+        &["--log-checkpoint-steps: must be >= 1 (a checkpoint every STEPS flow steps), got 0"],
+    );
+}
+
+/// Gas cells smaller than about a sixth of a diameter panicked in the
+/// mapping, blaming the porous-cube factor even under volume weighting.
+#[test]
+fn gas_cells_too_small_for_the_particles_are_refused() {
+    let e = scenario_error("bubbling-bed-jet.toml", &["gas.cells=[1000, 45, 1]"]);
+    assert_contains(
+        &e,
+        &[
+            "gas.cells[0]: gas cells of 1.500e-4 m along x are too small for the largest particle diameter 0.004 m",
+            "volume weighting maps a particle as a cube of side 0.806 d",
+            "may span at most 5 cells; allowed: gas.cells[0] <= 211",
+        ],
+    );
+    assert!(!e.contains("cube_factor"), "{e}");
+    let e = scenario_error(
+        "bubbling-bed-jet.toml",
+        &[
+            "gas.porosity=porous-cube",
+            "gas.cube_factor=10",
+            "gas.cells=[50, 45, 1]",
+        ],
+    );
+    assert_contains(
+        &e,
+        &[
+            "gas.cells[0]",
+            "gas.cube_factor = 10.0 maps a particle as a cube of side 10.0 d",
+            "or a smaller gas.cube_factor",
+        ],
+    );
+}
+
+/// Diameters of 1e-20 in a gas bed indexed out of bounds in the coupling.
+#[test]
+fn unresolvably_small_diameters_are_refused() {
+    let e = scenario_error("bidisperse-bed.toml", &["particles.1.diameter=1e-20"]);
+    assert_contains(
+        &e,
+        &[
+            "particles[1].diameter: the smallest diameter must be >= 2e-7 m, got 1e-20",
+            "diameters must be at least 1e-6 of that coordinate",
+        ],
+    );
+    // Below 1 nm whatever the domain.
+    let e = scenario_error(
+        "box-walls.toml",
+        &[
+            "domain.hi=[2e-6, 4e-6, 2e-6]",
+            "particles.0.diameter=1e-10",
+            "particles.0.count=1",
+        ],
+    );
+    assert_contains(
+        &e,
+        &["particles[0].diameter: the smallest diameter must be >= 1e-9 m, got 1e-10"],
+    );
+}
+
+// ---------------------------------------------------------------------------
+// Aborts from huge allocations.
+
+#[test]
+fn allocations_implied_by_the_values_together_are_estimated() {
+    // Diameters of 1e-15 in a domain of ±1e300: the neighbour grid.
+    let e = scenario_error(
+        "box-walls.toml",
+        &[
+            "domain.lo=[-1e300, -1e300, -1e300]",
+            "domain.hi=[1e300, 1e300, 1e300]",
+            "particles.0.diameter=1e-15",
+        ],
+    );
+    assert_contains(
+        &e,
+        &["particles[0].diameter: the smallest diameter must be >= 1e294 m"],
+    );
+    // A tally grid of 4096³ cells.
+    let e = scenario_error(
+        "box-walls.toml",
+        &[
+            "output.tally_cells=[4096, 4096, 4096]",
+            "output.snapshot_interval=0.01",
+        ],
+    );
+    assert_contains(
+        &e,
+        &[
+            "output.tally_cells: the run would need about 8246.3",
+            "GB of memory (collision tally 8246.3",
+            "more than this machine's",
+        ],
+    );
+    // Many particles whose neighbour lists are long (a wide size ratio).
+    let e = scenario_error(
+        "hcs-3d.toml",
+        &[
+            "particles.0.solids_fraction=0.2",
+            "particles.0.diameter={ discrete = { values = [1e-5, 1e-3], weights = [0.99, 0.01] } }",
+        ],
+    );
+    assert_contains(
+        &e,
+        &[
+            "particles[0].solids_fraction: the run would need about",
+            "neighbour lists",
+        ],
+    );
+}
+
+/// The neighbour grid's memory is bounded whatever the domain and particle
+/// sizes (cells capped in total, overflowing cells kept in lists).
+#[test]
+fn neighbour_grid_of_a_huge_dilute_domain_is_bounded() {
+    let domain = edpm::domain::Domain {
+        lo: DVec3::ZERO,
+        hi: DVec3::splat(1e3),
+        axes: [edpm::domain::AxisBoundary::Walls; 3],
+        outlet: None,
+    };
+    // 100 particles of 1 mm in a cluster: 1e18 cells would be needed.
+    let particles: Vec<NewParticle> = (0..100)
+        .map(|i| NewParticle {
+            pos: DVec3::new(
+                1.0 + 0.0011 * (i % 10) as f64,
+                1.0 + 0.0011 * (i / 10) as f64,
+                1.0,
+            ),
+            vel: DVec3::ZERO,
+            omega: DVec3::ZERO,
+            radius: 5e-4,
+            material: 0,
+        })
+        .collect();
+    let e: Engine<IndexedHeap> = Engine::new(
+        domain,
+        MaterialTable::single(2500.0, edpm::collision::ContactParams::ELASTIC_SMOOTH),
+        EngineConfig {
+            skin: 1e-4,
+            ..Default::default()
+        },
+        &particles,
+    )
+    .unwrap();
+    let bytes = e.bytes_per_particle() * e.len();
+    assert!(bytes < 200_000_000, "{bytes} bytes");
+}
+
+/// A forged string length in a log header made bincode allocate 4.5e18 bytes.
+#[test]
+fn forged_lengths_in_a_log_header_are_malformed_not_an_abort() {
+    let dir = fresh_dir("forged-log");
+    let log = dir.join("run.log");
+    let o = run(
+        "scenarios/box-walls.toml",
+        &dir,
+        &["--t-end", "0.002", "--log", log.to_str().unwrap()],
+    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let mut bytes = std::fs::read(&log).unwrap();
+    // The writer string's length prefix (first 8 bytes of the payload),
+    // with the header checksum fixed so that the decoder sees it.
+    let len = u32::from_le_bytes(bytes[12..16].try_into().unwrap()) as usize;
+    bytes[32..40].copy_from_slice(&0x3f1a_0000_0000_0000u64.to_le_bytes());
+    let crc = crc32fast::hash(&bytes[32..32 + len]);
+    bytes[16..20].copy_from_slice(&crc.to_le_bytes());
+    std::fs::write(&log, &bytes).unwrap();
+    let o = edpm(&["replay", log.to_str().unwrap()]);
+    clean_error(&o, &["run.log: malformed file header at byte offset 0"]);
+}
+
+// ---------------------------------------------------------------------------
+// Hangs.
+
+#[test]
+fn output_intervals_shorter_than_the_flow_step_are_refused() {
+    for (key, value) in [
+        ("output.sample_interval", "1e-15"),
+        ("output.snapshot_interval", "1e-300"),
+        ("output.vtk_interval", "1e-5"),
+    ] {
+        let e = scenario_error("box-walls.toml", &[&format!("{key}={value}")]);
+        assert_contains(
+            &e,
+            &[&format!(
+                "{key}: must be >= 1e-4 s (at least time.dt_flow: samples and snapshots are taken at the ends of flow steps), got {value}"
+            )],
+        );
+    }
+    // Too many samples over a long run, though each is a flow step apart.
+    let e = scenario_error(
+        "box-walls.toml",
+        &["time.t_end=1000", "output.sample_interval=1e-4"],
+    );
+    assert_contains(
+        &e,
+        &["output.sample_interval: must be >= 1e-3 s (at most 1e6 per run of t_end = 1000.0 s)"],
+    );
+}
+
+#[test]
+fn flow_steps_are_bounded() {
+    let e = scenario_error("box-walls.toml", &["time.dt_flow=1e-300"]);
+    assert_contains(
+        &e,
+        &["time.dt_flow: must be >= t_end / 1e8 = 5e-9 s (at most 1e8 flow steps), got 1e-300"],
+    );
+}
+
+#[test]
+fn speeds_the_event_clock_cannot_resolve_are_refused() {
+    let e = scenario_error("box-walls.toml", &["particles.0.temperature=1e300"]);
+    assert_contains(
+        &e,
+        &[
+            "particles[0].temperature: speeds (mean velocity plus 5 standard deviations of the temperature) reach 5.000e150 m/s",
+            "at most 4.50e5 are resolved by the event clock: speeds must stay below 4.504e6 m/s with time.dt_flow = 0.0001 s",
+        ],
+    );
+    let e = scenario_error("box-walls.toml", &["particles.0.velocity=[1e100, 0, 0]"]);
+    assert_contains(
+        &e,
+        &["particles[0].velocity: speeds (the mean velocity) reach 1.000e100 m/s"],
+    );
+}
+
+/// The stall reproducer of the issue: a dense inelastic box without TC
+/// stopped advancing and ran for ever without a report.
+#[test]
+fn stalled_event_loop_stops_with_causes_and_remedies() {
+    let dir = fresh_dir("stall");
+    let o = run(
+        "scenarios/box-walls.toml",
+        &dir,
+        &[
+            "--set",
+            "particles.0.count=2500",
+            "--set",
+            "collisions.default.e_n=0.3",
+            "--set",
+            "collisions.tc=0",
+            "--t-end",
+            "0.005",
+        ],
+    );
+    clean_error(
+        &o,
+        &[
+            "scenarios/box-walls.toml: simulated time stopped advancing at t = ",
+            "less than 1e-6 of the flow step (0.0001 s)",
+            "Likely cause: inelastic collapse in a dense region (smallest restitution e_n = 0.3)",
+            "Remedies: the TC model (collisions.tc, e.g. 1e-5 s",
+            "a hybrid model that treats dense regions with soft spheres is planned",
+            "summary.json has \"status\": \"failed\"",
+        ],
+    );
+    let s = summary(&dir);
+    assert_eq!(s["status"], "failed");
+    assert!(s["error"].as_str().unwrap().contains("stopped advancing"));
+    assert!(s["t_end"].as_f64().unwrap() < 0.005);
+    assert!(dir.join("timeseries.csv").exists());
+    assert!(!dir.join("final_state.bin").exists());
+}
+
+// ---------------------------------------------------------------------------
+// Wrong results with exit 0.
+
+#[test]
+fn extreme_gravity_and_density_are_refused() {
+    let e = scenario_error("box-walls.toml", &["domain.gravity=[0, -1e300, 0]"]);
+    assert_contains(
+        &e,
+        &["domain.gravity: free-fall speeds reach 3.130e149 m/s"],
+    );
+    let e = scenario_error("box-walls.toml", &["materials.0.density=1e-300"]);
+    assert_contains(
+        &e,
+        &[
+            "materials[0].density: must be in [0.1, 100000.0] kg/m³ (aerogels are above 0.1, osmium is 22 600), got 1e-300",
+        ],
+    );
+    // Particles lighter than the gas.
+    let e = scenario_error(
+        "fluidized-bed.toml",
+        &["gas.model=incompressible", "gas.density=3000"],
+    );
+    assert_contains(
+        &e,
+        &[
+            "materials[0].density: the particles of particles[0] (2500.0 kg/m³) are lighter than the gas",
+        ],
+    );
+}
+
+/// Speeds past what the event clock resolves after a kick stop the run
+/// with the particle, the time and the likely causes (here the scenario
+/// was changed after validation, as a library user could).
+#[test]
+fn runaway_speeds_stop_the_run_with_the_particle_and_causes() {
+    let dir = fresh_dir("runaway");
+    let mut s = Scenario::from_file_with_overrides(
+        Path::new(ROOT).join("scenarios/box-walls.toml"),
+        &["time.t_end=0.002".into()],
+    )
+    .unwrap();
+    s.populations[0].temperature = 1e16;
+    let e = run_scenario_with(&s, &dir, &RunOptions::default())
+        .expect_err("must stop")
+        .to_string();
+    assert_contains(
+        &e,
+        &[
+            "box-walls.toml: particle ",
+            "of its diameters in a flow step of 0.0001 s after the kicks, more than the 4.50e5 the event clock resolves at t = 0.0 s",
+            "Likely causes, with this run's values: speeds: the fastest particle moves at",
+        ],
+    );
+    assert_eq!(summary(&dir)["status"], "failed");
+}
+
+/// A particle with a non-finite state is found by the engine's check.
+#[test]
+fn non_finite_particles_are_found() {
+    let domain = edpm::domain::Domain {
+        lo: DVec3::ZERO,
+        hi: DVec3::splat(0.01),
+        axes: [edpm::domain::AxisBoundary::Walls; 3],
+        outlet: None,
+    };
+    let p = |x: f64| NewParticle {
+        pos: DVec3::new(x, 0.005, 0.005),
+        vel: DVec3::ZERO,
+        omega: DVec3::ZERO,
+        radius: 5e-4,
+        material: 0,
+    };
+    let mut e: Engine<IndexedHeap> = Engine::new(
+        domain,
+        MaterialTable::single(2500.0, edpm::collision::ContactParams::ELASTIC_SMOOTH),
+        EngineConfig {
+            skin: 1e-4,
+            ..Default::default()
+        },
+        &[p(0.002), p(0.006)],
+    )
+    .unwrap();
+    assert_eq!(e.find_bad_particle(), None);
+    e.kick_slots(&[DVec3::ZERO, DVec3::new(f64::NAN, 0.0, 0.0)]);
+    let bad = e.find_bad_particle().expect("the NaN velocity is found");
+    assert_eq!((bad.id, bad.outside_axis), (1, None));
+}
+
+/// t_end was silently rounded up to a whole number of flow steps (0.05 s
+/// with 0.0016 s steps ran to 0.0512 s): the last step is shorter.
+#[test]
+fn runs_end_exactly_at_t_end() {
+    let dir = fresh_dir("t-end");
+    let o = run(
+        "scenarios/hcs-3d.toml",
+        &dir,
+        &[
+            "--t-end",
+            "0.05",
+            "--set",
+            "particles.0.solids_fraction=0.02",
+        ],
+    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let s = summary(&dir);
+    assert_eq!(s["status"], "completed");
+    assert_eq!(s["flow_steps"], 32);
+    // Neumaier-summed flow steps end at t_end to round-off.
+    let t = s["t_end"].as_f64().unwrap();
+    assert!((t - 0.05).abs() < 1e-15, "ended at {t}");
+    let series = std::fs::read_to_string(dir.join("timeseries.csv")).unwrap();
+    let last: f64 = series
+        .lines()
+        .last()
+        .unwrap()
+        .split(',')
+        .next()
+        .unwrap()
+        .parse()
+        .unwrap();
+    assert!((last - 0.05).abs() < 1e-15, "last sample at {last}");
+}
+
+// ---------------------------------------------------------------------------
+// Unclear errors.
+
+/// A failed gas step printed the solver's message twice, with no hint and
+/// no summary. Forced here by one Newton iteration at a 1e-15 tolerance.
+#[test]
+fn failed_gas_step_is_reported_once_with_causes_and_keeps_results() {
+    let dir = fresh_dir("gas-failure");
+    let o = run(
+        "scenarios/bubbling-bed-jet.toml",
+        &dir,
+        &[
+            "--t-end",
+            "0.01",
+            "--set",
+            "gas.max_outer_iterations=1",
+            "--set",
+            "gas.mass_tolerance=1e-15",
+        ],
+    );
+    let e = clean_error(
+        &o,
+        &[
+            "scenarios/bubbling-bed-jet.toml: gas phase: gas step at t = 0.0001 s did not converge",
+            "likely causes: the flow step is too long for the gas speeds: with time.dt_flow = 0.0001 s the gas Courant number reached",
+            "(the fastest inflow, gas.jets[0].velocity = 42.0 m/s, alone gives 0.210 with cells of 2.000e-2 m",
+            "tight solver settings: gas.mass_tolerance = 1e-15, gas.max_outer_iterations = 1",
+        ],
+    );
+    assert_eq!(e.matches("did not converge").count(), 1, "{e}");
+    let s = summary(&dir);
+    assert_eq!(s["status"], "failed");
+    assert!(dir.join("timeseries.csv").exists() && dir.join("gas_timeseries.csv").exists());
+}
+
+/// An inflow the explicit gas convection cannot carry in one flow step is
+/// refused before the run, with the speed and step that would work.
+#[test]
+fn inflow_courant_number_is_checked() {
+    let e = scenario_error(
+        "bubbling-bed-jet.toml",
+        &["gas.jets.0.velocity=1000", "time.dt_flow=1e-2"],
+    );
+    assert_contains(
+        &e,
+        &[
+            "gas.jets[0].velocity: the gas Courant number 1000.0 m/s x time.dt_flow 0.01 s / cell size 2.000e-2 m = 500.000 exceeds 1",
+            "allowed: speed <= 2.0000e0 m/s, or time.dt_flow <= 2.0000e-5 s",
+        ],
+    );
+}
+
+#[test]
+fn replay_outside_the_log_is_refused() {
+    let dir = fresh_dir("replay-at");
+    let log = dir.join("run.log");
+    let o = run(
+        "scenarios/box-walls.toml",
+        &dir,
+        &["--t-end", "0.002", "--log", log.to_str().unwrap()],
+    );
+    assert!(o.status.success());
+    let o = edpm(&["replay", log.to_str().unwrap(), "--at", "1"]);
+    clean_error(&o, &["run.log: --at 1 s is after the end of the log at "]);
+    let o = edpm(&["replay", log.to_str().unwrap(), "--at", "NaN"]);
+    clean_error(&o, &["--at: must be a time >= 0 s, got NaN"]);
+}
+
+#[test]
+fn bad_t_end_option_is_refused() {
+    let dir = fresh_dir("t-end-option");
+    for bad in ["nan", "-1", "0", "inf"] {
+        let o = run(
+            "scenarios/box-walls.toml",
+            &dir,
+            &[&format!("--t-end={bad}")],
+        );
+        clean_error(&o, &["--t-end: must be > 0 s and finite, got"]);
+    }
+}
+
+/// Checkpoint files with trailing bytes, or with particles the scenario's
+/// limits refuse, are errors naming the file or field.
+#[test]
+fn damaged_or_unsuitable_checkpoints_are_refused() {
+    let cp = edpm::output::Checkpoint {
+        version: edpm::output::CHECKPOINT_VERSION,
+        time: 0.0,
+        particles: vec![NewParticle {
+            pos: DVec3::new(0.01, 0.01, 0.01),
+            vel: DVec3::ZERO,
+            omega: DVec3::ZERO,
+            radius: 1e-12,
+            material: 0,
+        }],
+    };
+    let dir = fresh_dir("checkpoint");
+    let path = dir.join("state.bin");
+    cp.write(&path).unwrap();
+    let mut bytes = std::fs::read(&path).unwrap();
+    bytes.extend_from_slice(&[1, 2, 3]);
+    let e = edpm::output::Checkpoint::from_bytes(&bytes, "state.bin")
+        .unwrap_err()
+        .to_string();
+    assert_eq!(
+        e,
+        "state.bin: not a valid edpm checkpoint: 3 unexpected bytes after the particles"
+    );
+    let text = std::fs::read_to_string(Path::new(ROOT).join("scenarios/box-walls.toml")).unwrap();
+    let start = text.find("[[particles]]").unwrap();
+    let end = text.find("[time]").unwrap();
+    let restart = format!(
+        "{}[initial]\ncheckpoint = \"state.bin\"\n\n{}",
+        &text[..start],
+        &text[end..]
+    );
+    let scenario = dir.join("restart.toml");
+    std::fs::write(&scenario, restart).unwrap();
+    let o = run(
+        scenario.to_str().unwrap(),
+        &dir.join("out"),
+        &["--t-end", "0.001"],
+    );
+    clean_error(
+        &o,
+        &[
+            "restart.toml: initial.checkpoint: holds particles of diameter 2e-12 m; diameters must be >= 4e-8 m",
+        ],
+    );
+}
