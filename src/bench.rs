@@ -129,10 +129,14 @@ pub struct BenchResult {
     pub bytes_per_particle: usize,
     /// Peak resident set size of the process (`VmHWM`, bytes) at the end
     /// of the measurement, as the OS reports it: includes the program, the
-    /// initial particle vector and the allocator's slack.
+    /// initial particle vector (freed once the engine is built) and the
+    /// allocator's slack.
     pub peak_rss_bytes: Option<u64>,
     /// `peak_rss_bytes / n`.
     pub peak_rss_bytes_per_particle: Option<f64>,
+    /// Resident set size at the end of the measurement (`VmRSS`), per
+    /// particle: the running engine's footprint as the OS sees it.
+    pub rss_bytes_per_particle: Option<f64>,
     /// Fraction of solid-like particles in the final state
     /// ([`solid_fraction`]): a few per cent in a fluid, near 1 in a crystal.
     pub solid_fraction: f64,
@@ -159,23 +163,27 @@ pub fn cpu_time() -> f64 {
     ts.tv_sec as f64 + 1e-9 * ts.tv_nsec as f64
 }
 
-/// Peak resident set size of this process (bytes): `VmHWM` from
-/// /proc/self/status, or `ru_maxrss` from getrusage where /proc is absent.
-pub fn peak_rss_bytes() -> Option<u64> {
+/// Resident set size of this process (bytes): `(current, peak)`, from
+/// `VmRSS` and `VmHWM` in /proc/self/status; where /proc is absent, the
+/// peak only, from getrusage's `ru_maxrss`.
+pub fn resident_set_bytes() -> (Option<u64>, Option<u64>) {
     if let Ok(status) = std::fs::read_to_string("/proc/self/status") {
-        return status
-            .lines()
-            .find_map(|l| l.strip_prefix("VmHWM:"))
-            .and_then(|v| v.trim().strip_suffix("kB"))
-            .and_then(|v| v.trim().parse::<u64>().ok())
-            .map(|kib| kib * 1024);
+        let field = |name: &str| {
+            status
+                .lines()
+                .find_map(|l| l.strip_prefix(name))
+                .and_then(|v| v.trim().strip_suffix("kB"))
+                .and_then(|v| v.trim().parse::<u64>().ok())
+                .map(|kib| kib * 1024)
+        };
+        return (field("VmRSS:"), field("VmHWM:"));
     }
     // SAFETY: getrusage writes into the struct we pass and has no other
     // effect; an all-zero rusage is a valid initial value.
     let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
     let ok = unsafe { libc::getrusage(libc::RUSAGE_SELF, &mut usage) } == 0;
     // Linux reports ru_maxrss in KiB.
-    (ok && usage.ru_maxrss > 0).then(|| usage.ru_maxrss as u64 * 1024)
+    (None, (ok && usage.ru_maxrss > 0).then(|| usage.ru_maxrss as u64 * 1024))
 }
 
 /// Side of the periodic cube holding `count` unit spheres at packing
@@ -585,7 +593,7 @@ fn run_with<Q: EventQueue>(opts: &BenchOptions) -> BenchResult {
     let cpu_start = cpu_time();
     run_until(&mut engine, (opts.measure * n as f64) as u64);
     let cpu_seconds = cpu_time() - cpu_start;
-    let peak_rss = peak_rss_bytes();
+    let (rss, peak_rss) = resident_set_bytes();
     let collisions = engine.counters.pair_collisions - start.pair_collisions;
     let elapsed = engine.time() - t_start;
     let energy_end = engine.kinetic_energy().0;
@@ -609,6 +617,7 @@ fn run_with<Q: EventQueue>(opts: &BenchOptions) -> BenchResult {
         bytes_per_particle: engine.bytes_per_particle(),
         peak_rss_bytes: peak_rss,
         peak_rss_bytes_per_particle: peak_rss.map(|b| b as f64 / n as f64),
+        rss_bytes_per_particle: rss.map(|b| b as f64 / n as f64),
         solid_fraction: solid_fraction(&positions, side),
         neighbour_updates_per_collision: (engine.counters.neighbour_updates
             - start.neighbour_updates) as f64

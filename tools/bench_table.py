@@ -142,6 +142,7 @@ def main():
                 "edmd_pressure": {v: statistics.median(r["pressure_reduced"] for r in runs[v]) for v in a.edmd_bins},
                 "rss": statistics.median(r["peak_rss_bytes_per_particle"] or 0 for r in e),
                 "estimate": e[0]["bytes_per_particle"],
+                "rss_now": statistics.median(r.get("rss_bytes_per_particle") or 0 for r in e),
                 "edmd_rss": {v: statistics.median(r.get("maxrss_kib", 0) * 1024 / n for r in runs[v])
                              for v in a.edmd_bins},
             })
@@ -170,14 +171,15 @@ def main():
         "Pressure (beta P sigma^3, medians) and memory (peak RSS per particle, the OS's figure):",
         "",
         "| N | phi | edpm | " + " | ".join(f"EDMD {v}" for v in variants)
-        + " | Carnahan-Starling | edpm RSS B/particle (own estimate) | "
+        + " | Carnahan-Starling | edpm peak RSS B/particle (at end; own estimate) | "
         + " | ".join(f"{v} RSS B/particle" for v in variants) + " |",
         "|---|---|---|" + "---|" * len(variants) + "---|---|" + "---|" * len(variants),
     ]
     for row in rows:
         cells = [f"{row['n']}", f"{row['phi']}", f"{row['pressure']:.4f}"]
         cells += [f"{row['edmd_pressure'][v]:.4f}" for v in variants]
-        cells += [f"{carnahan_starling_pressure(row['phi']):.4f}", f"{row['rss']:.0f} ({row['estimate']})"]
+        cells += [f"{carnahan_starling_pressure(row['phi']):.4f}",
+                  f"{row['rss']:.0f} ({row['rss_now']:.0f}; {row['estimate']})"]
         cells += [f"{row['edmd_rss'][v]:.0f}" for v in variants]
         lines.append("| " + " | ".join(cells) + " |")
     table = "\n".join(lines) + "\n"
