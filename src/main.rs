@@ -133,14 +133,20 @@ enum Command {
         /// synchronised and re-predicted, as in a coupled run.
         #[arg(long)]
         flow_step: Option<f64>,
-        /// Neighbour-shell thickness in diameters.
-        #[arg(long, default_value_t = 0.2)]
+        /// Neighbour-shell thickness in diameters (lists only).
+        #[arg(long, default_value_t = bench::DEFAULT_SKIN)]
         skin: f64,
         #[arg(long, value_enum, default_value = "calendar")]
         queue: QueueArg,
-        /// Neighbour search: per-particle lists or cells.
-        #[arg(long, value_enum, default_value = "lists")]
+        /// Neighbour search: per-particle lists, cells, or `auto`, the rule
+        /// of `edpm run` (cells below a packing fraction of 0.2).
+        #[arg(long, value_enum, default_value = "auto")]
         neighbours: NeighbourArg,
+        /// Initial state: an FCC lattice, a fluid melted at phi = 0.45 and
+        /// compressed, or `auto` (the lattice below phi = 0.46, where it
+        /// melts during equilibration; compressed above).
+        #[arg(long, value_enum, default_value = "auto")]
+        start: StartArg,
         /// Renumber particles in cell order every this many collisions per
         /// particle, for memory locality (0: never).
         #[arg(long, default_value_t = 20.0)]
@@ -152,8 +158,16 @@ enum Command {
 
 #[derive(Clone, Copy, clap::ValueEnum)]
 enum NeighbourArg {
+    Auto,
     Lists,
     Cells,
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum StartArg {
+    Auto,
+    Lattice,
+    Compressed,
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -237,6 +251,7 @@ fn main() -> ExitCode {
             skin,
             queue,
             neighbours,
+            start,
             reorder_every,
             seed,
         } => {
@@ -265,13 +280,26 @@ fn main() -> ExitCode {
                         skin,
                         queue: queue.into(),
                         neighbours: match neighbours {
-                            NeighbourArg::Lists => NeighbourSearch::Lists,
-                            NeighbourArg::Cells => NeighbourSearch::Cells,
+                            NeighbourArg::Auto => None,
+                            NeighbourArg::Lists => Some(NeighbourSearch::Lists),
+                            NeighbourArg::Cells => Some(NeighbourSearch::Cells),
+                        },
+                        start: match start {
+                            StartArg::Auto => bench::Start::Auto,
+                            StartArg::Lattice => bench::Start::Lattice,
+                            StartArg::Compressed => bench::Start::Compressed,
                         },
                         reorder_every,
                         seed,
                     };
                     let r = bench::run(&opts);
+                    if r.solid_fraction > bench::CRYSTAL_WARNING_FRACTION {
+                        eprintln!(
+                            "edpm: warning: {:.0} % of the particles are solid-like at the end: \
+                             the pressure is not the fluid's (try --start compressed)",
+                            100.0 * r.solid_fraction
+                        );
+                    }
                     println!(
                         "{}",
                         serde_json::to_string(&r).expect("bench result serialises")

@@ -390,11 +390,8 @@ pub fn build_engine<Q: EventQueue>(s: &Scenario) -> anyhow::Result<Engine<Q>> {
     .with_context(|| format!("{}: building the initial state", s.name))
 }
 
-/// The neighbour search for a scenario: as chosen, or for `auto` cells when
-/// the initial solids fraction is below 0.2 without gravity, or below 0.02
-/// with gravity (which gathers dilute particles into dense beds, where
-/// lists are 2x faster: measured on scenarios/box-walls.toml), and every
-/// periodic axis spans at least three cells. See results/benchmarks.md.
+/// The neighbour search for a scenario: as chosen, or for `auto` the rule
+/// of [`auto_neighbour_search`] applied to the initial solids fraction.
 fn neighbour_search(s: &Scenario, particles: &[NewParticle], r_max: f64) -> NeighbourSearch {
     match s.engine.neighbours {
         NeighbourChoice::Lists => NeighbourSearch::Lists,
@@ -404,21 +401,34 @@ fn neighbour_search(s: &Scenario, particles: &[NewParticle], r_max: f64) -> Neig
                 .iter()
                 .map(|p| 4.0 / 3.0 * std::f64::consts::PI * p.radius.powi(3))
                 .sum();
-            let fraction = solids / s.domain.volume();
             let size = s.domain.extent();
             let cells_fit =
                 (0..3).all(|a| !s.boundaries.is_periodic(a) || size[a] >= 3.0 * 2.0 * r_max);
-            let threshold = if s.domain.gravity == DVec3::ZERO {
-                0.2
-            } else {
-                0.02
-            };
-            if fraction < threshold && cells_fit {
-                NeighbourSearch::Cells
-            } else {
-                NeighbourSearch::Lists
-            }
+            auto_neighbour_search(
+                solids / s.domain.volume(),
+                s.domain.gravity != DVec3::ZERO,
+                cells_fit,
+            )
         }
+    }
+}
+
+/// The `auto` neighbour search, shared by `edpm run` and `edpm bench`:
+/// cells when the solids fraction is below 0.2 without gravity, or below
+/// 0.02 with gravity (which gathers dilute particles into dense beds, where
+/// lists are 2x faster: measured on scenarios/box-walls.toml), and every
+/// periodic axis spans at least three cells of one largest diameter
+/// (`cells_fit`); lists otherwise. See results/benchmarks.md.
+pub fn auto_neighbour_search(
+    solids_fraction: f64,
+    gravity: bool,
+    cells_fit: bool,
+) -> NeighbourSearch {
+    let threshold = if gravity { 0.02 } else { 0.2 };
+    if solids_fraction < threshold && cells_fit {
+        NeighbourSearch::Cells
+    } else {
+        NeighbourSearch::Lists
     }
 }
 
