@@ -104,8 +104,9 @@
 //! rotation, not Eq. 40's first-order scheme. Two measures keep it second
 //! order with velocity-dependent and switching forces:
 //! * the dashpots see the velocity predicted for the end of the step;
-//! * a contact that starts within a step is weighted by the fraction of the
-//!   step it lasted, because the dashpot force jumps at first touch.
+//! * the impulse of the step in which a contact starts is integrated over the
+//!   part of the step spent in contact, because the dashpot force jumps at
+//!   first touch.
 //!
 //! All per-contact functions are allocation-free.
 
@@ -513,9 +514,10 @@ pub struct ContactState {
     pub force_t: DVec3,
     /// True if the Coulomb limit was reached at the last step.
     pub sliding: bool,
-    /// Weight of the last force in the closing half kick: `2s` for a contact
-    /// that began a fraction `s` of a step before the step's end, else 1.
-    pub kick_weight: f64,
+    /// Normal and tangential force (N) added to the closing half kick of the
+    /// step in which the contact began (see [`step`]); zero otherwise.
+    pub onset_correction_n: f64,
+    pub onset_correction_t: DVec3,
 }
 
 /// A pair of sphere `a` and a partner that may touch.
@@ -625,17 +627,21 @@ fn geometry(spheres: &[SoftSphere], a: usize, partner: &Partner, back: f64) -> (
 ///    (mid-step) contact velocity, evaluated at the mid-step normal.
 /// 3. `v ← v + ½dt a(t+dt)`. A contact that began during the step, a
 ///    fraction `s` of it before the end (from the overlaps at both ends,
-///    linear in time along the drift), contributes `2s` times its force
-///    instead of once. Its dashpot force jumps at first touch, and this is
-///    the trapezoidal impulse of the part spent in contact.
+///    linear in time along the drift), contributes `(s dt/2)(F_touch + F)`
+///    instead of `(dt/2) F`: the trapezoid over the part spent in contact,
+///    where `F_touch` is the dashpot force at first touch on the drift
+///    velocity (the springs are still relaxed then). For the dashpots at the
+///    end of that step, the predicted contact velocity is reduced by what
+///    `F_touch` removes over `s dt` (Eq. 15).
 ///
 /// Order: the prediction differs from the end-of-step velocity by O(dt²),
 /// so the force error is O(dt²) and the local error O(dt³). The force has
-/// kinks (first touch of the spring, the clamp, stick–slip), each with an
-/// O(dt³) local error. The onset weight removes the O(dt²) impulse error of
-/// the dashpot jump. So the global error is O(dt²), measured in
-/// tests/soft_contact.rs. With `η = 0` the scheme is the symplectic Verlet
-/// method.
+/// kinks (the clamp, stick–slip, the spring at first touch), each with an
+/// O(dt³) local error. The dashpot force jumps at first touch; the onset
+/// trapezoid reduces the error of that step's impulse from O(dt) to O(dt²)
+/// once per contact. So the global error is O(dt²), measured in
+/// tests/soft_contact.rs. With `η = 0` and no contact starting, the scheme is
+/// the symplectic Verlet method.
 ///
 /// `contacts` lists the candidate pairs (each once); a pair that does not
 /// overlap exerts no force and forgets its tangential history. At the start,
@@ -663,13 +669,23 @@ pub fn step(spheres: &mut [SoftSphere], contacts: &mut [SoftContact], gravity: D
         s.omega += half * s.torque * s.inv_inertia();
     }
     for c in contacts.iter() {
-        let extra = c.state.kick_weight - 1.0;
-        if extra != 0.0 {
-            let n = c.state.normal;
-            let force = c.state.force_n * n + c.state.force_t;
-            apply(spheres, c, n, half * extra * force, half * extra * c.state.force_t);
+        let st = &c.state;
+        if st.onset_correction_n != 0.0 || st.onset_correction_t != DVec3::ZERO {
+            let j_t = half * st.onset_correction_t;
+            let j = half * st.onset_correction_n * st.normal + j_t;
+            apply(spheres, c, st.normal, j, j_t);
         }
     }
+}
+
+/// Contact force at first touch (zero overlap and tangential displacement)
+/// for contact velocity `v`: the dashpots alone, clamped and Coulomb-limited.
+#[inline]
+fn touch_force(v: DVec3, n: DVec3, c: &PairCoefficients) -> (f64, DVec3) {
+    let v_n = v.dot(n);
+    let f_n = normal_force(0.0, v_n, c.k_n, c.eta_n);
+    let (f_t, _) = tangential_force(&mut DVec3::ZERO, v - v_n * n, f_n, c);
+    (f_n, f_t)
 }
 
 /// Adds impulse `j` (on a; b gets `−j`) and the angular impulses of its
@@ -693,14 +709,15 @@ fn evaluate(spheres: &mut [SoftSphere], c: &mut SoftContact, dt: f64) {
         c.state = ContactState {
             normal: n,
             overlap,
-            kick_weight: 1.0,
             ..ContactState::default()
         };
         return;
     }
     let was_touching = c.state.touching;
-    let (fraction, n_old) = if was_touching {
-        (1.0, c.state.normal)
+    // Fraction of the step in contact and the previous normal; overlap
+    // before the step (None if the contact is continuing).
+    let (fraction, n_old, overlap_prev) = if was_touching {
+        (1.0, c.state.normal, None)
     } else {
         let (n_prev, overlap_prev) = geometry(spheres, c.a, &c.partner, dt);
         let s = if overlap_prev < 0.0 {
@@ -708,23 +725,51 @@ fn evaluate(spheres: &mut [SoftSphere], c: &mut SoftContact, dt: f64) {
         } else {
             1.0
         };
-        (s, n_prev)
+        (s, n_prev, Some(overlap_prev))
     };
     let sa = &spheres[c.a];
     let (drift_b, pred_b) = match c.partner {
         Partner::Sphere(b) => (body(&spheres[b], false), body(&spheres[b], true)),
         Partner::Wall { .. } => (Body::WALL, Body::WALL),
     };
+    let inv_m_ab = sa.inv_mass + drift_b.inv_mass;
     let n_mid = (n_old + n).normalize_or(n);
     let v_mid = contact_velocity(n_mid, &body(sa, false), &drift_b);
+    let mut velocity = contact_velocity(n, &body(sa, true), &pred_b);
+    let touch = match overlap_prev {
+        Some(prev) if prev < 0.0 => {
+            // First touch within this step: the dashpots alone act at touch,
+            // on the drift velocity (free flight until then). They have
+            // already slowed the contact for the part `s dt` of the step
+            // (Eq. 15: Δv_ab = (F_n n + 7/2 F_t) / m_ab).
+            let (touch_n, touch_t) = touch_force(v_mid, n, &c.coeffs);
+            velocity += (fraction * dt * inv_m_ab) * (touch_n * n + 3.5 * touch_t);
+            Some((touch_n, touch_t))
+        }
+        _ => None,
+    };
     let kin = ContactKinematics {
         normal: n,
         overlap,
-        velocity: contact_velocity(n, &body(sa, true), &pred_b),
+        velocity,
         slip: (v_mid - v_mid.dot(n) * n) * (fraction * dt),
     };
     contact_force(&kin, &c.coeffs, &mut c.state);
-    c.state.kick_weight = if was_touching { 1.0 } else { 2.0 * fraction };
+    let (correction_n, correction_t) = match (overlap_prev, touch) {
+        (None, _) => (0.0, DVec3::ZERO),
+        // Trapezoid over the part of the step in contact,
+        // (s dt/2)(F_touch + F_end), in place of the (dt/2) F_end of the
+        // closing half kick.
+        (Some(_), Some((touch_n, touch_t))) => (
+            (fraction - 1.0) * c.state.force_n + fraction * touch_n,
+            (fraction - 1.0) * c.state.force_t + fraction * touch_t,
+        ),
+        // Overlapping already before the step but new to the list: the
+        // opening half kick missed it.
+        (Some(_), None) => (c.state.force_n, c.state.force_t),
+    };
+    c.state.onset_correction_n = correction_n;
+    c.state.onset_correction_t = correction_t;
     let force = c.state.force_n * n + c.state.force_t;
     let spin = n.cross(c.state.force_t);
     let sa = &mut spheres[c.a];
