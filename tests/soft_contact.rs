@@ -266,6 +266,12 @@ fn hard(s: &Setup) -> (Body, Body, collision::Impulse) {
     collision::collide(DVec3::X, &a, &b, &s.params)
 }
 
+/// A list of numbers in short scientific notation, for test output.
+fn sci(values: &[f64]) -> String {
+    let parts: Vec<String> = values.iter().map(|v| format!("{v:.2e}")).collect();
+    format!("[{}]", parts.join(", "))
+}
+
 /// Least-squares slope of log y against log x.
 fn log_slope(x: &[f64], y: &[f64]) -> f64 {
     let lx: Vec<f64> = x.iter().map(|v| v.ln()).collect();
@@ -475,3 +481,440 @@ fn oscillator(m: f64, k: f64, eta: f64, clamp: bool) -> OscillatorRun {
         (x, v, t) = (x1, v1, t + h);
     }
 }
+
+// ---------------------------------------------------------------------------
+// Oblique impacts
+// ---------------------------------------------------------------------------
+
+/// Relative difference `|x − y| / |y|` of two vectors.
+fn rel(x: DVec3, y: DVec3) -> f64 {
+    (x - y).length() / y.length()
+}
+
+/// Sliding impacts (Eq. 21 sliding branch, v_t three times the sliding
+/// threshold): at every step with a normal force, the contact slides along
+/// the same direction. The tangential impulse is therefore exactly `−μ J_n`
+/// against a wall, whose normal is fixed. For a pair, the normal turns by
+/// less than 10⁻³ rad at an overlap of 10⁻⁴ d, so the impulses along the
+/// fixed axes differ from the contact-frame ones by less than 10⁻³ J_n,
+/// which is 1 % of `μ J_n`. The Coulomb limit holds at every step to
+/// round-off (1e-12).
+///
+/// Against the hard model: impulse, velocities and spins within 1 %. That is
+/// the restitution bound of the normal test, since `J_t = −μ J_n` in both.
+#[test]
+fn oblique_sliding_gives_mu_times_the_normal_impulse() {
+    for wall in [false, true] {
+        for (e_n, beta_0) in [(0.9, 0.33), (0.5, 0.0), (1.0, 1.0)] {
+            let s = Setup {
+                params: ContactParams {
+                    e_n,
+                    beta_0,
+                    mu: 0.1,
+                },
+                v0: 1.0,
+                vt: 3.0 * 0.1 * (1.0 + e_n) * 3.5 / (1.0 + beta_0),
+                wall,
+                steps_per_contact: DEFAULT_STEPS_PER_CONTACT,
+                phase: 0.37,
+                overlap_target: if wall { 0.01 } else { 1e-4 },
+            };
+            let (ha, hb, himp) = hard(&s);
+            assert_eq!(himp.kind, collision::CollisionKind::Sliding);
+            let o = collide(&s, None);
+            let case = format!("wall {wall} e_n {e_n} beta_0 {beta_0}: {o:?}");
+            assert_eq!(o.sticking_steps, 0, "{case}");
+            assert!(o.coulomb_ratio <= 1.0 + 1e-12, "{case}");
+            let ratio = -o.impulse.y / o.impulse.x / 0.1 - 1.0;
+            let tol = if wall { 1e-12 } else { 1e-2 };
+            assert!(ratio.abs() < tol, "{case}: {ratio:e}");
+            assert!(rel(o.impulse, himp.j) < 0.01, "{case}");
+            assert!((o.va - ha.vel).length() < 0.01 * s.v0, "{case}");
+            assert!((o.wa - ha.omega).length() * RADIUS < 0.01 * s.v0, "{case}");
+            if !wall {
+                assert!((o.vb - hb.vel).length() < 0.01 * s.v0, "{case}");
+                assert!((o.wb - hb.omega).length() * RADIUS < 0.01 * s.v0, "{case}");
+            }
+        }
+    }
+}
+
+/// Sticking impacts (Eq. 21 sticking branch) against the hard model.
+/// * No dashpots (e_n = 1, β₀ = 1): normal and tangential springs have the
+///   same half period, so `|F_t| / F_n = 2/7 v_t/v_n` at every step. It never
+///   reaches μ, and the soft impulse is Eq. 21's. Tolerance 0.5 %: the
+///   integration error, O(dt²), measured 0.14 %.
+/// * With dashpots and μ = 100: the Coulomb limit binds only where
+///   `F_n < |F_t|/100`, at the very end. Tolerance 1 %: the integration error,
+///   measured at most 0.5 %.
+/// * With the scenarios' μ = 0.3: the limit binds at first touch, where only
+///   the dashpots act and `|F_t|/F_n = η_t v_t / (η_n v_n) > μ`, and near the
+///   end. Sticking is then not exactly Eq. 21's. Tolerance 3 %: the
+///   model's own deviation is at most 2.8 % for these cases (measured
+///   against the independent fine integration of
+///   `sticking_model_against_an_independent_fine_integration`).
+///
+/// The Coulomb limit holds at every step to round-off.
+#[test]
+fn oblique_sticking_reproduces_beta_0() {
+    let cases = [
+        (1.0, 1.0, 0.5, 0.5, 0.005),
+        (0.9, 0.33, 100.0, 0.5, 0.01),
+        (0.9, 0.33, 0.3, 0.5, 0.03),
+        (0.9, 0.33, 0.3, 0.2, 0.03),
+        (0.9, 0.0, 0.3, 0.5, 0.03),
+        (0.9, -0.5, 0.3, 0.5, 0.03),
+    ];
+    for wall in [false, true] {
+        for (e_n, beta_0, mu, vt, tol) in cases {
+            let s = Setup {
+                params: ContactParams { e_n, beta_0, mu },
+                v0: 1.0,
+                vt,
+                wall,
+                steps_per_contact: DEFAULT_STEPS_PER_CONTACT,
+                phase: 0.37,
+                overlap_target: if wall { 0.01 } else { 1e-4 },
+            };
+            let (ha, _, himp) = hard(&s);
+            assert_eq!(himp.kind, collision::CollisionKind::Sticking);
+            let o = collide(&s, None);
+            let label = format!("wall {wall} e_n {e_n} beta_0 {beta_0} mu {mu} vt {vt}");
+            let case = format!("{label}: {o:?}");
+            assert!(o.coulomb_ratio <= 1.0 + 1e-12, "{case}");
+            let dj_t = o.impulse.y / himp.j.y - 1.0;
+            println!("{label}: J_t / J_t(Eq. 21) - 1 = {dj_t:+.3e}");
+            assert!(dj_t.abs() < tol, "{case}: {dj_t:e}");
+            assert!((o.impulse.x / himp.j.x - 1.0).abs() < 0.01, "{case}");
+            assert!((o.wa - ha.omega).length() * RADIUS < tol * vt + 0.01 * s.v0 * 0.1);
+            if e_n == 1.0 {
+                assert_eq!(o.sticking_steps, o.force_steps, "{case}");
+                let expected = 2.0 / 7.0 * vt / s.v0 / mu;
+                assert!((o.coulomb_ratio / expected - 1.0).abs() < 0.01, "{case}");
+            }
+        }
+    }
+}
+
+/// The tangential model integrated independently: a sphere against a wall,
+/// written here as scalar ODEs of the normal overlap `x`, the tangential
+/// contact velocity `w` (effective mass 2/7 m, Eq. 15) and the element
+/// displacement `d`:
+/// `m ẍ = −F_n`, `F_n = max(k_n x + η_n ẋ, 0)`,
+/// `2/7 m ẇ = F_t`, with `F_t = −k_t d − η_t w` and `ḋ = w` while
+/// `|F_t| ≤ μ F_n`; otherwise `F_t = ±μ F_n` and `η_t ḋ = −F_t − k_t d`.
+/// Semi-implicit Euler with 100 000 steps per contact (first order; error
+/// about 1e-5 of the impulses). The coefficients are the code's
+/// (`SoftParams::coefficients`), so this checks the integration of the
+/// tangential law with its stick–slip switching, and the 3-D vector
+/// implementation.
+///
+/// Tolerance on the tangential impulse at 20 steps: 1 %. Away from the
+/// stick–slip switches the integration error is O(dt²), about 0.1 %. A slip
+/// interval at the start or the end that is shorter than a step can be
+/// missed, because the forces are sampled at the step ends. That costs
+/// up to 0.83 % (at v_t/v_n = 0.2, where the largest `|F_t|/(μ F_n)` sampled
+/// is 0.94).
+/// The same reference measures how far the model itself is from Eq. 21
+/// (printed): +2.8 %, +0.7 %, +4.4 % for v_t/v_n = 0.5, 0.2, 1.0 at
+/// e_n = 0.9, β₀ = 0.33, μ = 0.3, and −1.6 % and −1.0 % for β₀ = 0 and −0.5.
+#[test]
+fn sticking_model_against_an_independent_fine_integration() {
+    let cases = [
+        (0.9, 0.33, 0.3, 0.5),
+        (0.9, 0.33, 0.3, 0.2),
+        (0.9, 0.33, 0.3, 1.0),
+        (0.9, 0.33, 0.1, 0.5),
+        (0.9, 0.0, 0.3, 0.5),
+        (0.9, -0.5, 0.3, 0.5),
+        (0.5, 0.33, 0.3, 1.0),
+        (0.9, 0.33, 0.1, 2.0),
+    ];
+    for (e_n, beta_0, mu, vt) in cases {
+        let s = Setup {
+            params: ContactParams { e_n, beta_0, mu },
+            v0: 1.0,
+            vt,
+            wall: true,
+            steps_per_contact: DEFAULT_STEPS_PER_CONTACT,
+            phase: 0.37,
+            overlap_target: 0.01,
+        };
+        let m = s.m_ab();
+        let soft = s.soft();
+        let c = soft.coefficients(m);
+        let (j_n, j_t) = wall_reference(&c, m, soft.contact_time(m), s.v0, s.vt);
+        let o = collide(&s, None);
+        let (_, _, himp) = hard(&s);
+        let label = format!("e_n {e_n} beta_0 {beta_0} mu {mu} vt {vt}");
+        let d_int = -o.impulse.y / j_t - 1.0;
+        let d_model = -j_t / himp.j.y - 1.0;
+        println!(
+            "{label}: soft(20 steps) / reference - 1 = {d_int:+.2e}; \
+             reference / Eq. 21 - 1 = {d_model:+.2e} ({:?})",
+            himp.kind
+        );
+        assert!(d_int.abs() < 0.01, "{label}: {d_int:e}");
+        assert!((o.impulse.x / j_n - 1.0).abs() < 0.01, "{label}");
+    }
+}
+
+/// Normal and tangential impulse magnitudes (N s) of the wall model of
+/// `sticking_model_against_an_independent_fine_integration`; `J_t` is along
+/// the initial slip.
+fn wall_reference(c: &PairCoefficients, m: f64, t_contact: f64, v0: f64, vt: f64) -> (f64, f64) {
+    let h = t_contact / 100_000.0;
+    let m_t = 2.0 / 7.0 * m;
+    let (mut x, mut u, mut w, mut d) = (0.0_f64, v0, vt, 0.0_f64);
+    let (mut j_n, mut j_t) = (0.0, 0.0);
+    let mut started = false;
+    while x >= 0.0 || !started {
+        started = true;
+        let f_n = (c.k_n * x + c.eta_n * u).max(0.0);
+        let trial = -c.k_t * d - c.eta_t * w;
+        let limit = c.mu * f_n;
+        let sliding = trial.abs() > limit;
+        let f_t = if sliding {
+            limit.copysign(trial)
+        } else {
+            trial
+        };
+        u -= h * f_n / m;
+        w += h * f_t / m_t;
+        x += h * u;
+        if sliding {
+            d = if c.eta_t > 0.0 {
+                let target = -f_t / c.k_t;
+                target + (d - target) * (-c.k_t * h / c.eta_t).exp()
+            } else {
+                -f_t / c.k_t
+            };
+        } else {
+            d += h * w;
+        }
+        j_n += h * f_n;
+        j_t -= h * f_t;
+    }
+    (j_n, j_t)
+}
+
+// ---------------------------------------------------------------------------
+// Order of the integrator and energy
+// ---------------------------------------------------------------------------
+
+/// Second order: errors at 20, 40, …, 640 steps per contact, fitted on a
+/// log–log scale. The touch phase is the same at every resolution.
+/// * Normal impact, e_n = 0.5, pair: `|e_measured − e_n|` (exact limit).
+///   Bound: slope −2 ± 0.1 (measured −1.995).
+/// * Oblique impacts: final velocities and spins against a 5120-step
+///   reference. Cases: wall sliding (e_n = 0.9, β₀ = 0.33, μ = 0.1,
+///   v_t = 1.5 v_n). Sticking with a damped normal and an undamped
+///   tangential spring (e_n = 0.7, β₀ = 1, μ = 1, v_t = 0.5 v_n) against a
+///   wall, and for a pair at overlap 10⁻⁴ d. A smooth pair (μ = 0) at 1 %
+///   overlap, whose normal turns by 0.03 rad during contact. Bound: slope
+///   at most −1.9. Measured −1.93 to −1.99 for velocities; spins converge
+///   faster (−3.2, −4.0).
+/// * Elastic impact (e_n = β₀ = 1): the trapezoids at first touch and at
+///   separation make an elastic contact time-symmetric, and the error is of
+///   fourth order. Bound: at most −3.5.
+///
+/// A first-order scheme (Eq. 40, or a dashpot on the half-step velocity, or
+/// no trapezoid for the dashpot jump at first touch) would give about −1.
+///
+/// Stick–slip impacts converge at second order only once a step resolves the
+/// slip intervals at the start and the end of the contact. Before that, an
+/// interval shorter than a step is sampled or missed depending on its phase
+/// (not fitted; see
+/// `sticking_model_against_an_independent_fine_integration`). A pair at 1 %
+/// overlap with friction is such a case: its turning normal shifts the end
+/// of the tangential oscillation from the end of the normal force, and the
+/// Coulomb limit binds briefly there.
+#[test]
+fn error_is_second_order_in_the_time_step() {
+    let levels: Vec<u32> = (0..6).map(|k| 20 << k).collect();
+    let steps: Vec<f64> = levels.iter().map(|&n| f64::from(n)).collect();
+
+    let errors: Vec<f64> = levels
+        .iter()
+        .map(|&n| {
+            let s = Setup::normal(0.5, false, n);
+            (restitution_measured(&s, &collide(&s, None)) - 0.5).abs()
+        })
+        .collect();
+    let slope = log_slope(&steps, &errors);
+    println!("restitution e_n = 0.5: errors {}, slope {slope:.3}", sci(&errors));
+    assert!((slope + 2.0).abs() < 0.1, "{slope}");
+
+    // Last field: the slope the errors must reach at least (steeper is
+    // allowed, see below).
+    let oblique = [
+        (true, 0.9, 0.33, 0.1, 1.5, 0.01, -1.9),
+        (true, 0.7, 1.0, 1.0, 0.5, 0.01, -1.9),
+        (false, 0.7, 1.0, 1.0, 0.5, 1e-4, -1.9),
+        (false, 0.7, 1.0, 0.0, 0.5, 0.01, -1.9),
+        (true, 1.0, 1.0, 0.5, 0.5, 0.01, -3.5),
+    ];
+    for (wall, e_n, beta_0, mu, vt, overlap_target, bound) in oblique {
+        let setup = |n: u32| Setup {
+            params: ContactParams { e_n, beta_0, mu },
+            v0: 1.0,
+            vt,
+            wall,
+            steps_per_contact: n,
+            phase: 0.37,
+            overlap_target,
+        };
+        let reference = collide(&setup(5120), None);
+        let (mut ev, mut ew) = (Vec::new(), Vec::new());
+        for &n in &levels {
+            let o = collide(&setup(n), None);
+            ev.push((o.va - reference.va).length() + (o.vb - reference.vb).length());
+            ew.push(RADIUS * ((o.wa - reference.wa).length() + (o.wb - reference.wb).length()));
+        }
+        let sv = log_slope(&steps, &ev);
+        // Smooth contacts leave the spins at zero.
+        let sw = if mu > 0.0 { log_slope(&steps, &ew) } else { sv };
+        println!(
+            "wall {wall} e_n {e_n} beta_0 {beta_0} mu {mu} vt {vt} overlap {overlap_target}: \
+             velocity errors {} slope {sv:.3}; spin errors {} slope {sw:.3}",
+            sci(&ev),
+            sci(&ew)
+        );
+        assert!(sv < bound && sw < bound, "{sv} {sw}");
+    }
+}
+
+/// Kinetic plus spring energy (J) of the system.
+fn energy(spheres: &[SoftSphere], contacts: &[SoftContact]) -> f64 {
+    let kinetic: f64 = spheres.iter().map(SoftSphere::kinetic_energy).sum();
+    let springs: f64 = contacts
+        .iter()
+        .filter(|c| c.state.touching)
+        .map(|c| {
+            0.5 * c.coeffs.k_n * c.state.overlap.powi(2)
+                + 0.5 * c.coeffs.k_t * c.state.displacement.length_squared()
+        })
+        .sum();
+    kinetic + springs
+}
+
+/// Largest relative energy deviations of an elastic run: over all steps,
+/// and over the steps at which no contact is active (what the contacts left
+/// behind).
+struct EnergyErrors {
+    any: f64,
+    between_contacts: f64,
+    contacts_started: usize,
+}
+
+/// Runs eight spheres of four sizes in a closed box (six walls), e_n = 1,
+/// μ = 0, for 20 ms: about 250 contacts, some with several partners at
+/// once.
+fn elastic_box(steps_per_contact: u32) -> EnergyErrors {
+    let params = ContactParams {
+        e_n: 1.0,
+        beta_0: -1.0,
+        mu: 0.0,
+    };
+    let side = 6e-3;
+    let radii = [0.8e-3, 1.0e-3, 1.2e-3, 0.8e-3, 1.0e-3, 1.2e-3, 0.9e-3, 1.1e-3];
+    let mut spheres: Vec<SoftSphere> = radii
+        .iter()
+        .enumerate()
+        .map(|(i, &r)| {
+            let corner = DVec3::new((i & 1) as f64, ((i >> 1) & 1) as f64, ((i >> 2) & 1) as f64);
+            let pos = DVec3::splat(1.5e-3) + corner * 3e-3;
+            let phase = i as f64 * 1.7;
+            let vel = DVec3::new(phase.sin(), (2.3 * phase).cos(), (0.7 * phase + 1.0).sin());
+            let mass = DENSITY * 4.0 / 3.0 * std::f64::consts::PI * r * r * r;
+            SoftSphere::new(pos, vel, DVec3::ZERO, r, mass)
+        })
+        .collect();
+    // k_n for at most 1 % of the smallest diameter for the heaviest pair
+    // (a 1.2 mm sphere on a wall) at 3 m/s.
+    let m_max = DENSITY * 4.0 / 3.0 * std::f64::consts::PI * 1.2e-3_f64.powi(3);
+    let k_n = stiffness_for_overlap(m_max, 1.0, 3.0, 0.01 * 1.6e-3).unwrap();
+    let soft = SoftParams::new(&params, k_n).unwrap();
+    let mut contacts = Vec::new();
+    let mut t_contact = f64::INFINITY;
+    for a in 0..spheres.len() {
+        for b in a + 1..spheres.len() {
+            let m_ab = 1.0 / (spheres[a].inv_mass + spheres[b].inv_mass);
+            t_contact = t_contact.min(soft.contact_time(m_ab));
+            contacts.push(SoftContact::new(a, Partner::Sphere(b), soft.coefficients(m_ab)));
+        }
+        let m_a = 1.0 / spheres[a].inv_mass;
+        for axis in [DVec3::X, DVec3::Y, DVec3::Z] {
+            for (point, normal) in [(DVec3::ZERO, axis), (axis * side, -axis)] {
+                contacts.push(SoftContact::new(
+                    a,
+                    Partner::Wall { point, normal },
+                    soft.coefficients(m_a),
+                ));
+            }
+        }
+    }
+    let dt = time_step(t_contact, steps_per_contact);
+    let e0 = energy(&spheres, &contacts);
+    let mut errors = EnergyErrors {
+        any: 0.0,
+        between_contacts: 0.0,
+        contacts_started: 0,
+    };
+    let n_steps = (0.02 / dt).round() as usize;
+    for _ in 0..n_steps {
+        let before: Vec<bool> = contacts.iter().map(|c| c.state.touching).collect();
+        step(&mut spheres, &mut contacts, DVec3::ZERO, dt);
+        errors.contacts_started += contacts
+            .iter()
+            .zip(&before)
+            .filter(|(c, was)| c.state.touching && !**was)
+            .count();
+        let deviation = (energy(&spheres, &contacts) / e0 - 1.0).abs();
+        errors.any = errors.any.max(deviation);
+        if contacts.iter().all(|c| !c.state.touching) {
+            errors.between_contacts = errors.between_contacts.max(deviation);
+        }
+    }
+    errors
+}
+
+/// e_n = 1, μ = 0: energy is conserved to the integrator's error.
+/// * During contacts the energy oscillates by O(dt²), Verlet's bounded
+///   shadow-energy error: the largest deviation over the run falls by about
+///   4 per halving of dt. Slope 2 ± 0.15 over 20 … 320 steps per contact
+///   (measured 1.90; the ratio rises from 2.7 to 4.3 as dt falls). The
+///   bound allows for the chaotic runs, whose contact sequences differ with
+///   dt. At 20 steps the deviation is below 0.2 % (measured 0.11 %).
+/// * Between contacts, what about 250 contacts have left behind is far
+///   smaller and falls at least as fast (measured 5·10⁻⁵ at 20 steps,
+///   about fourth order). The trapezoids at first touch and at separation
+///   make each elastic contact time-symmetric. Checked: below the
+///   in-contact deviation, and falling by at least 4 per halving.
+#[test]
+fn elastic_smooth_energy_error_is_second_order() {
+    let levels = [20_u32, 40, 80, 160, 320];
+    let mut any = Vec::new();
+    let mut between = Vec::new();
+    for n in levels {
+        let e = elastic_box(n);
+        println!(
+            "{n} steps per contact: largest |E/E0 - 1| = {:.3e}, between contacts {:.3e}, \
+             contacts {}",
+            e.any, e.between_contacts, e.contacts_started
+        );
+        assert!(e.contacts_started > 200, "{}", e.contacts_started);
+        assert!(e.between_contacts <= e.any);
+        any.push(e.any);
+        between.push(e.between_contacts);
+    }
+    let steps: Vec<f64> = levels.iter().map(|&n| f64::from(n)).collect();
+    let slope = log_slope(&steps, &any);
+    println!("slope {slope:.3}");
+    assert!((slope + 2.0).abs() < 0.15, "{slope}");
+    assert!(any[0] < 0.002, "{}", any[0]);
+    for pair in between.windows(2) {
+        assert!(pair[1] <= pair[0] / 4.0, "{between:?}");
+    }
+}
+

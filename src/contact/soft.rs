@@ -585,10 +585,11 @@ pub struct ContactState {
     pub force_t: DVec3,
     /// True if the Coulomb limit was reached at the last step.
     pub sliding: bool,
-    /// Normal and tangential force (N) added to the closing half kick of the
-    /// step in which the contact began (see [`step`]); zero otherwise.
-    pub onset_correction_n: f64,
-    pub onset_correction_t: DVec3,
+    /// Normal (along `normal`) and tangential force (N) added to the closing
+    /// half kick of a step in which the contact began or ended (see [`step`]);
+    /// zero otherwise.
+    pub kick_correction_n: f64,
+    pub kick_correction_t: DVec3,
 }
 
 /// A pair of sphere `a` and a partner that may touch.
@@ -715,7 +716,10 @@ fn geometry(spheres: &[SoftSphere], a: usize, partner: &Partner, back: f64) -> (
 ///    where `F_touch` is the dashpot force at first touch on the drift
 ///    velocity (the springs are still relaxed then). For the dashpots at the
 ///    end of that step, the predicted contact velocity is reduced by what
-///    `F_touch` removes over `s dt` (Eq. 15).
+///    `F_touch` removes over `s dt` (Eq. 15). Symmetrically, a contact that
+///    ended during the step, a fraction `s` of it after its start, had its
+///    last force `F` applied for `dt/2` by the opening half kick; the
+///    closing half kick adds `(s − 1)(dt/2) F`.
 ///
 /// Order: the prediction differs from the end-of-step velocity by O(dt²),
 /// so the force error is O(dt²) and the local error O(dt³). The force has
@@ -723,8 +727,12 @@ fn geometry(spheres: &[SoftSphere], a: usize, partner: &Partner, back: f64) -> (
 /// O(dt³) local error. The dashpot force jumps at first touch; the onset
 /// trapezoid reduces the error of that step's impulse from O(dt) to O(dt²)
 /// once per contact. So the global error is O(dt²), measured in
-/// tests/soft_contact.rs. With `η = 0` and no contact starting, the scheme is
-/// the symplectic Verlet method.
+/// tests/soft_contact.rs. The trapezoids at both ends keep an elastic
+/// contact symmetric in time. Without them, plain Verlet leaves a
+/// restitution error of order (ω₀ dt)³ for e_n = 1, and the onset
+/// trapezoid alone leaves (ω₀ dt)². With both, the error is of order
+/// (ω₀ dt)⁴, measured 2·10⁻⁵ at 20 steps. With `η = 0` and no
+/// contact starting or ending, the scheme is the symplectic Verlet method.
 ///
 /// `contacts` lists the candidate pairs (each once); a pair that does not
 /// overlap exerts no force and forgets its tangential history. A pair
@@ -755,9 +763,9 @@ pub fn step(spheres: &mut [SoftSphere], contacts: &mut [SoftContact], gravity: D
     }
     for c in contacts.iter() {
         let st = &c.state;
-        if st.onset_correction_n != 0.0 || st.onset_correction_t != DVec3::ZERO {
-            let j_t = half * st.onset_correction_t;
-            let j = half * st.onset_correction_n * st.normal + j_t;
+        if st.kick_correction_n != 0.0 || st.kick_correction_t != DVec3::ZERO {
+            let j_t = half * st.kick_correction_t;
+            let j = half * st.kick_correction_n * st.normal + j_t;
             apply(spheres, c, st.normal, j, j_t);
         }
     }
@@ -792,9 +800,24 @@ fn apply(spheres: &mut [SoftSphere], c: &SoftContact, n: DVec3, j: DVec3, j_t: D
 fn evaluate(spheres: &mut [SoftSphere], c: &mut SoftContact, dt: f64) {
     let (n, overlap) = geometry(spheres, c.a, &c.partner, 0.0);
     if overlap <= 0.0 {
+        // Apart. If the contact ended during this step, the opening half kick
+        // applied its last force for dt/2; it lasted a fraction `s` of the
+        // step (linear overlap), so the trapezoid gives (s dt/2) F.
+        let (normal, correction_n, correction_t) = if c.state.touching {
+            let s = (c.state.overlap / (c.state.overlap - overlap)).clamp(0.0, 1.0);
+            (
+                c.state.normal,
+                (s - 1.0) * c.state.force_n,
+                (s - 1.0) * c.state.force_t,
+            )
+        } else {
+            (n, 0.0, DVec3::ZERO)
+        };
         c.state = ContactState {
-            normal: n,
+            normal,
             overlap,
+            kick_correction_n: correction_n,
+            kick_correction_t: correction_t,
             ..ContactState::default()
         };
         return;
@@ -846,18 +869,29 @@ fn evaluate(spheres: &mut [SoftSphere], c: &mut SoftContact, dt: f64) {
         duration: fraction * dt,
         previous_force_t,
     };
+    let (previous_n, previous_t) = (c.state.force_n, previous_force_t);
     contact_force(&kin, &c.coeffs, &mut c.state);
-    // Trapezoid over the part of the step in contact, (s dt/2)(F_touch + F),
-    // in place of the (dt/2) F of the closing half kick.
     let (correction_n, correction_t) = match touch {
-        None => (0.0, DVec3::ZERO),
+        // Trapezoid over the part of the step in contact,
+        // (s dt/2)(F_touch + F), in place of the (dt/2) F of the closing
+        // half kick.
         Some((touch_n, touch_t)) => (
             (fraction - 1.0) * c.state.force_n + fraction * touch_n,
             (fraction - 1.0) * c.state.force_t + fraction * touch_t,
         ),
+        None if previous_n > 0.0 && c.state.force_n == 0.0 => {
+            // The clamp ended the force during this step, a fraction `s`
+            // after its start (the unclamped force is linear in time); the
+            // opening half kick applied the last force for dt/2 instead of
+            // s dt/2.
+            let unclamped = c.coeffs.k_n * overlap - c.coeffs.eta_n * velocity.dot(n);
+            let s = previous_n / (previous_n - unclamped);
+            ((s - 1.0) * previous_n, (s - 1.0) * previous_t)
+        }
+        None => (0.0, DVec3::ZERO),
     };
-    c.state.onset_correction_n = correction_n;
-    c.state.onset_correction_t = correction_t;
+    c.state.kick_correction_n = correction_n;
+    c.state.kick_correction_t = correction_t;
     let force = c.state.force_n * n + c.state.force_t;
     let spin = n.cross(c.state.force_t);
     let sa = &mut spheres[c.a];
