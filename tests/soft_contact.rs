@@ -199,11 +199,13 @@ fn collide(s: &Setup, coeffs_override: Option<PairCoefficients>) -> Outcome {
                 sticking_steps += 1;
             }
             if coeffs.mu > 0.0 {
-                coulomb_ratio =
-                    coulomb_ratio.max(st.force_t.length() / (coeffs.mu * st.force_n));
+                coulomb_ratio = coulomb_ratio.max(st.force_t.length() / (coeffs.mu * st.force_n));
             }
         }
-        assert!(step_index < 100 * s.steps_per_contact as usize, "no separation");
+        assert!(
+            step_index < 100 * s.steps_per_contact as usize,
+            "no separation"
+        );
     }
     let k = overlaps
         .iter()
@@ -284,7 +286,6 @@ fn log_slope(x: &[f64], y: &[f64]) -> f64 {
     sxy / sxx
 }
 
-
 /// Phases of first touch within a step, to cover the onset treatment.
 const PHASES: [f64; 10] = [0.0, 0.05, 0.15, 0.25, 0.37, 0.5, 0.62, 0.75, 0.85, 0.95];
 
@@ -317,14 +318,22 @@ fn normal_impact_restitution_and_contact_time() {
                 let t_star = s.soft().contact_time(s.m_ab());
                 let de = restitution_measured(&s, &o) / e_n - 1.0;
                 let dt = o.force_time / t_star - 1.0;
-                assert!(de.abs() < 0.01, "wall {wall} e_n {e_n} phase {phase}: {de:e}");
-                assert!(dt.abs() < 0.02, "wall {wall} e_n {e_n} phase {phase}: {dt:e}");
+                assert!(
+                    de.abs() < 0.01,
+                    "wall {wall} e_n {e_n} phase {phase}: {de:e}"
+                );
+                assert!(
+                    dt.abs() < 0.02,
+                    "wall {wall} e_n {e_n} phase {phase}: {dt:e}"
+                );
                 worst_e = worst_e.max(de.abs());
                 worst_t = worst_t.max(dt.abs());
             }
         }
     }
-    println!("worst relative error at 20 steps: restitution {worst_e:.2e}, contact time {worst_t:.2e}");
+    println!(
+        "worst relative error at 20 steps: restitution {worst_e:.2e}, contact time {worst_t:.2e}"
+    );
 }
 
 /// The stiffness from a target overlap gives that overlap: k_n from
@@ -363,7 +372,10 @@ fn stiffness_from_overlap_gives_the_target_overlap() {
                 assert!((s.soft().k_n / k_n - 1.0).abs() < 1e-12);
                 let o = collide(&s, None);
                 let rel = o.max_overlap / target - 1.0;
-                assert!(rel.abs() < 0.01, "wall {wall} e_n {e_n} phase {phase}: {rel:e}");
+                assert!(
+                    rel.abs() < 0.01,
+                    "wall {wall} e_n {e_n} phase {phase}: {rel:e}"
+                );
                 worst = worst.max(rel.abs());
                 if e_n <= 0.9 {
                     let undamped = v_design * (m_ab / k_n).sqrt();
@@ -419,7 +431,10 @@ fn eq27_and_eq41_hold_without_the_clamp_only() {
         .unwrap();
         let r = oscillator(m, k, 2.0 * zeta, true);
         assert!((r.restitution - e_n).abs() < 1e-6, "{r:?}");
-        assert!((r.duration / soft.contact_time(m) - 1.0).abs() < 1e-6, "{r:?}");
+        assert!(
+            (r.duration / soft.contact_time(m) - 1.0).abs() < 1e-6,
+            "{r:?}"
+        );
         assert!((r.max_overlap / soft.max_overlap(m, 1.0) - 1.0).abs() < 1e-6);
         println!(
             "e_n {e_n}: clamped with Eq. 27 gives {:.4}; t* / Eq. 41 = {:.4}",
@@ -742,7 +757,10 @@ fn error_is_second_order_in_the_time_step() {
         })
         .collect();
     let slope = log_slope(&steps, &errors);
-    println!("restitution e_n = 0.5: errors {}, slope {slope:.3}", sci(&errors));
+    println!(
+        "restitution e_n = 0.5: errors {}, slope {slope:.3}",
+        sci(&errors)
+    );
     assert!((slope + 2.0).abs() < 0.1, "{slope}");
 
     // Last field: the slope the errors must reach at least (steeper is
@@ -817,7 +835,9 @@ fn elastic_box(steps_per_contact: u32) -> EnergyErrors {
         mu: 0.0,
     };
     let side = 6e-3;
-    let radii = [0.8e-3, 1.0e-3, 1.2e-3, 0.8e-3, 1.0e-3, 1.2e-3, 0.9e-3, 1.1e-3];
+    let radii = [
+        0.8e-3, 1.0e-3, 1.2e-3, 0.8e-3, 1.0e-3, 1.2e-3, 0.9e-3, 1.1e-3,
+    ];
     let mut spheres: Vec<SoftSphere> = radii
         .iter()
         .enumerate()
@@ -841,7 +861,11 @@ fn elastic_box(steps_per_contact: u32) -> EnergyErrors {
         for b in a + 1..spheres.len() {
             let m_ab = 1.0 / (spheres[a].inv_mass + spheres[b].inv_mass);
             t_contact = t_contact.min(soft.contact_time(m_ab));
-            contacts.push(SoftContact::new(a, Partner::Sphere(b), soft.coefficients(m_ab)));
+            contacts.push(SoftContact::new(
+                a,
+                Partner::Sphere(b),
+                soft.coefficients(m_ab),
+            ));
         }
         let m_a = 1.0 / spheres[a].inv_mass;
         for axis in [DVec3::X, DVec3::Y, DVec3::Z] {
@@ -918,3 +942,142 @@ fn elastic_smooth_energy_error_is_second_order() {
     }
 }
 
+// ---------------------------------------------------------------------------
+// Static load
+// ---------------------------------------------------------------------------
+
+/// Two spheres stacked on a wall under gravity (e_n = 0.5, β₀ = 0.33,
+/// μ = 0.3), released touching at rest, come to rest with the contacts carrying the weight: the wall overlap is
+/// `2 m g / k_n` with force `2 m g`, and the pair overlap `m g / k_n` with
+/// force `m g`. After 400 contact times, the damped oscillations
+/// (`e^{−ζ ω₀ t}`, ζ ≈ 0.2) have decayed far below round-off. Tolerance
+/// 1e-9 relative on the forces and overlaps, and 1e-9 m/s on the velocities.
+#[test]
+fn stacked_spheres_at_rest_carry_their_weight() {
+    let params = ContactParams {
+        e_n: 0.5,
+        beta_0: 0.33,
+        mu: 0.3,
+    };
+    let m = sphere_mass();
+    let g = 9.81;
+    let k_n = stiffness_for_overlap(m, params.e_n, 1.0, 0.01 * 2.0 * RADIUS).unwrap();
+    let soft = SoftParams::new(&params, k_n).unwrap();
+    let mut spheres = vec![
+        SoftSphere::new(
+            DVec3::new(RADIUS, 0.0, 0.0),
+            DVec3::ZERO,
+            DVec3::ZERO,
+            RADIUS,
+            m,
+        ),
+        SoftSphere::new(
+            DVec3::new(3.0 * RADIUS, 0.0, 0.0),
+            DVec3::ZERO,
+            DVec3::ZERO,
+            RADIUS,
+            m,
+        ),
+    ];
+    let mut contacts = [
+        SoftContact::new(
+            0,
+            Partner::Wall {
+                point: DVec3::ZERO,
+                normal: DVec3::X,
+            },
+            soft.coefficients(m),
+        ),
+        SoftContact::new(1, Partner::Sphere(0), soft.coefficients(0.5 * m)),
+    ];
+    let t_contact = soft.contact_time(0.5 * m);
+    let dt = time_step(t_contact, DEFAULT_STEPS_PER_CONTACT);
+    for _ in 0..400 * DEFAULT_STEPS_PER_CONTACT {
+        step(&mut spheres, &mut contacts, DVec3::new(-g, 0.0, 0.0), dt);
+    }
+    let weight = m * g;
+    let (wall, pair) = (contacts[0].state, contacts[1].state);
+    assert!(
+        (wall.force_n / (2.0 * weight) - 1.0).abs() < 1e-9,
+        "{wall:?}"
+    );
+    assert!((pair.force_n / weight - 1.0).abs() < 1e-9, "{pair:?}");
+    assert!(
+        (wall.overlap / (2.0 * weight / k_n) - 1.0).abs() < 1e-9,
+        "{wall:?}"
+    );
+    assert!(
+        (pair.overlap / (weight / k_n) - 1.0).abs() < 1e-9,
+        "{pair:?}"
+    );
+    for s in &spheres {
+        assert!(
+            s.vel.length() < 1e-9 && s.omega.length() * RADIUS < 1e-9,
+            "{s:?}"
+        );
+        assert!(s.vel.is_finite() && s.pos.is_finite());
+    }
+    println!(
+        "wall overlap {:.4e} m = {:.4} % of d",
+        wall.overlap,
+        100.0 * wall.overlap / (2.0 * RADIUS)
+    );
+}
+
+/// A sphere sliding without spin on a wall under gravity (μ = 0.3) ends up
+/// rolling at 5/7 of its initial speed. Friction acts at the contact point,
+/// so the angular momentum about it, `m v R + I ω`, is conserved, and rolling
+/// (`ω R = v`) gives `v = 5/7 v₀`. The sliding phase lasts
+/// `2 v₀ / (7 μ g)` = 1 ms, about 16 contact times; the run lasts 400.
+/// Tolerances: the soft torque uses the lever arm R, while the contact point
+/// sits at `R − δ` with `δ/R = m g/(k_n R)` = 1.6·10⁻⁵. That bounds the error
+/// in v at about 2·10⁻⁵ relative; we use 1e-4. Rolling holds to 1e-9 m/s,
+/// after the tangential dashpot has damped the stick oscillation.
+#[test]
+fn sliding_sphere_on_a_wall_ends_rolling_at_five_sevenths() {
+    let params = ContactParams {
+        e_n: 0.5,
+        beta_0: 0.33,
+        mu: 0.3,
+    };
+    let m = sphere_mass();
+    let g = 9.81;
+    let v0 = 0.01;
+    let k_n = stiffness_for_overlap(m, params.e_n, 1.0, 0.01 * 2.0 * RADIUS).unwrap();
+    let soft = SoftParams::new(&params, k_n).unwrap();
+    let mut spheres = [SoftSphere::new(
+        DVec3::new(RADIUS, 0.0, 0.0),
+        DVec3::new(0.0, v0, 0.0),
+        DVec3::ZERO,
+        RADIUS,
+        m,
+    )];
+    let mut contacts = [SoftContact::new(
+        0,
+        Partner::Wall {
+            point: DVec3::ZERO,
+            normal: DVec3::X,
+        },
+        soft.coefficients(m),
+    )];
+    let dt = time_step(soft.contact_time(m), DEFAULT_STEPS_PER_CONTACT);
+    let mut slid = false;
+    for _ in 0..400 * DEFAULT_STEPS_PER_CONTACT {
+        step(&mut spheres, &mut contacts, DVec3::new(-g, 0.0, 0.0), dt);
+        let st = contacts[0].state;
+        assert!(
+            st.force_t.length() <= 0.3 * st.force_n * (1.0 + 1e-12),
+            "{st:?}"
+        );
+        slid |= st.sliding;
+    }
+    assert!(slid);
+    let s = spheres[0];
+    let v = s.vel.y;
+    assert!((v / (5.0 / 7.0 * v0) - 1.0).abs() < 1e-4, "{s:?}");
+    // Contact point velocity (Eq. 11 with n = +x): v − R ω × n.
+    let slip = s.vel - RADIUS * s.omega.cross(DVec3::X);
+    assert!(slip.length() < 1e-9, "{s:?}");
+    assert!(s.vel.x.abs() < 1e-9, "{s:?}");
+    println!("final speed / v0 = {:.7} (5/7 = {:.7})", v / v0, 5.0 / 7.0);
+}
