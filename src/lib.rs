@@ -8,6 +8,7 @@
 pub mod analysis;
 pub mod bench;
 pub mod collision;
+pub mod contact;
 pub mod domain;
 pub mod engine;
 pub mod eventlog;
