@@ -21,10 +21,10 @@ use rand_xoshiro::Xoshiro256PlusPlus;
 use crate::collision::ContactParams;
 use crate::domain::{AxisBoundary, Domain};
 use crate::engine::{Engine, EngineConfig, NeighbourSearch};
-use crate::run::auto_neighbour_search;
 use crate::materials::MaterialTable;
 use crate::particles::NewParticle;
 use crate::queue::{CalendarQueue, EventQueue, IndexedHeap, QueueKind, ReferenceQueue};
+use crate::run::auto_neighbour_search;
 
 /// Benchmark settings.
 #[derive(Clone, Debug, PartialEq)]
@@ -183,7 +183,10 @@ pub fn resident_set_bytes() -> (Option<u64>, Option<u64>) {
     let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
     let ok = unsafe { libc::getrusage(libc::RUSAGE_SELF, &mut usage) } == 0;
     // Linux reports ru_maxrss in KiB.
-    (None, (ok && usage.ru_maxrss > 0).then(|| usage.ru_maxrss as u64 * 1024))
+    (
+        None,
+        (ok && usage.ru_maxrss > 0).then(|| usage.ru_maxrss as u64 * 1024),
+    )
 }
 
 /// Side of the periodic cube holding `count` unit spheres at packing
@@ -223,7 +226,10 @@ pub fn fcc_system(n: usize, phi: f64, seed: u64) -> (Domain, Vec<NewParticle>) {
         }
     }
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
-    (periodic_cube(side), with_maxwellian_velocities(positions, &mut rng))
+    (
+        periodic_cube(side),
+        with_maxwellian_velocities(positions, &mut rng),
+    )
 }
 
 /// Pushes every overlapping pair of unit spheres in the periodic cube
@@ -243,7 +249,11 @@ fn remove_overlaps(positions: &mut [DVec3], side: f64) {
             let distance = r.length();
             overlapping |= distance < 1.0;
             // Coincident centres (probability ~0) are pushed along x.
-            let direction = if distance > 0.0 { r / distance } else { DVec3::X };
+            let direction = if distance > 0.0 {
+                r / distance
+            } else {
+                DVec3::X
+            };
             let shift = 0.5 * (PUSHED_DISTANCE - distance) * direction;
             push[i] += shift;
             push[j] -= shift;
@@ -328,13 +338,20 @@ fn periodic_cube(side: f64) -> Domain {
 
 /// Unit spheres at `positions` with Gaussian velocities shifted to zero
 /// total momentum and scaled to temperature exactly 1 (k_B T = m = 1).
-fn with_maxwellian_velocities(positions: Vec<DVec3>, rng: &mut Xoshiro256PlusPlus) -> Vec<NewParticle> {
+fn with_maxwellian_velocities(
+    positions: Vec<DVec3>,
+    rng: &mut Xoshiro256PlusPlus,
+) -> Vec<NewParticle> {
     let count = positions.len();
     let mut particles: Vec<NewParticle> = positions
         .into_iter()
         .map(|pos| NewParticle {
             pos,
-            vel: DVec3::new(standard_normal(rng), standard_normal(rng), standard_normal(rng)),
+            vel: DVec3::new(
+                standard_normal(rng),
+                standard_normal(rng),
+                standard_normal(rng),
+            ),
             omega: DVec3::ZERO,
             radius: 0.5,
             material: 0,
@@ -435,7 +452,8 @@ fn legendre_6(x: f64) -> [f64; 7] {
         if m < 6 {
             p = (2 * m + 1) as f64 * x * p_mm;
             for l in m + 2..=6 {
-                let next = ((2 * l - 1) as f64 * x * p - (l + m - 1) as f64 * below) / (l - m) as f64;
+                let next =
+                    ((2 * l - 1) as f64 * x * p - (l + m - 1) as f64 * below) / (l - m) as f64;
                 below = p;
                 p = next;
             }
@@ -652,7 +670,14 @@ mod tests {
         // 0.35355 (simple cubic), 0.62854 (BCC, 8 neighbours). Exact
         // lattice sums: only round-off separates them from the table's
         // five digits.
-        let sc = [DVec3::X, -DVec3::X, DVec3::Y, -DVec3::Y, DVec3::Z, -DVec3::Z];
+        let sc = [
+            DVec3::X,
+            -DVec3::X,
+            DVec3::Y,
+            -DVec3::Y,
+            DVec3::Z,
+            -DVec3::Z,
+        ];
         let mut bcc = Vec::new();
         for x in [-1.0, 1.0] {
             for y in [-1.0, 1.0] {
@@ -661,7 +686,11 @@ mod tests {
                 }
             }
         }
-        for (bonds, expected) in [(fcc_bonds(), 0.57452), (sc.to_vec(), 0.35355), (bcc, 0.62854)] {
+        for (bonds, expected) in [
+            (fcc_bonds(), 0.57452),
+            (sc.to_vec(), 0.35355),
+            (bcc, 0.62854),
+        ] {
             let q6 = q6_invariant(&q6_sum(bonds.iter().copied()), bonds.len());
             assert!((q6 - expected).abs() < 1e-5, "q6 {q6} vs {expected}");
         }
@@ -686,7 +715,10 @@ mod tests {
         let (domain, fluid) = compressed_system(2048, 0.5, 1);
         let positions: Vec<DVec3> = fluid.iter().map(|p| p.pos).collect();
         let fraction = solid_fraction(&positions, domain.size().x);
-        assert!(fraction < 0.05, "compressed fluid solid fraction {fraction}");
+        assert!(
+            fraction < 0.05,
+            "compressed fluid solid fraction {fraction}"
+        );
         // No overlaps were left (the engine would refuse them, too).
         let side = domain.size().x;
         let mut closest = f64::INFINITY;

@@ -1008,6 +1008,39 @@ fn analyse_planar_bidisperse_bed() {
     let (_, parts) = read_csv(&run.join("final_particles.csv"));
     let solids: f64 = parts.iter().map(|p| sphere_volume(p[2])).sum();
     assert!(rel(mean, solids / (0.05 * 0.1 * 0.002)) < 1e-9, "{mean}");
+    // Heterogeneity per height band: 10 layers make 5 bands of 2 with equal
+    // cell counts, so the band means average to the global mean (exact up
+    // to round-off; 1e-12); the bands tile the box height; the settled bed
+    // sits in the bottom band, above the top band's.
+    let hetero = &json["heterogeneity"];
+    let bands = json["heterogeneity_by_height"].as_array().unwrap();
+    assert_eq!(bands.len(), edpm::analysis::HEIGHT_BANDS);
+    let band_mean: f64 = bands
+        .iter()
+        .map(|b| b["mean_solids_fraction"].as_f64().unwrap())
+        .sum::<f64>()
+        / bands.len() as f64;
+    assert!(rel(band_mean, hetero["mean_solids_fraction"].as_f64().unwrap()) < 1e-12);
+    for (i, b) in bands.iter().enumerate() {
+        let (lo, hi) = (
+            b["height_lo"].as_f64().unwrap(),
+            b["height_hi"].as_f64().unwrap(),
+        );
+        assert!((lo - 0.02 * i as f64).abs() < 1e-12 && (hi - 0.02 * (i + 1) as f64).abs() < 1e-12);
+        assert!(b["wall_to_core_ratio"].as_f64().is_some(), "{b}");
+    }
+    assert!(
+        bands[0]["mean_solids_fraction"].as_f64().unwrap()
+            > bands[4]["mean_solids_fraction"].as_f64().unwrap()
+    );
+    let (bh, brows) = read_csv(&out.join("heterogeneity_by_height.csv"));
+    assert_eq!(brows.len(), bands.len());
+    assert!(
+        rel(
+            brows[0][column(&bh, "mean_solids_fraction")],
+            bands[0]["mean_solids_fraction"].as_f64().unwrap()
+        ) < 1e-12
+    );
     // What the TC model and the guard altered (rough particles, TC on):
     // the run's counters are the sums of the snapshots' per-cell tallies,
     // and so are the normal and tangential dissipation.

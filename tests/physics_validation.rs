@@ -120,7 +120,11 @@ fn bench_at_phi_0_5_measures_the_fluid_not_the_fcc_crystal() {
         r.solid_fraction
     );
     // Solid-like particles in the fluid: measured 0-0.1 %.
-    assert!(r.solid_fraction < 0.05, "solid fraction {}", r.solid_fraction);
+    assert!(
+        r.solid_fraction < 0.05,
+        "solid fraction {}",
+        r.solid_fraction
+    );
 
     // The lattice start at the same density stays a crystal, and the
     // detector says so (measured 79 % solid-like, pressure 9.1).
@@ -134,7 +138,11 @@ fn bench_at_phi_0_5_measures_the_fluid_not_the_fcc_crystal() {
         "lattice solid fraction {}",
         lattice.solid_fraction
     );
-    assert!(lattice.pressure_reduced < 0.85 * cs, "{}", lattice.pressure_reduced);
+    assert!(
+        lattice.pressure_reduced < 0.85 * cs,
+        "{}",
+        lattice.pressure_reduced
+    );
 }
 
 /// Random non-overlapping unit spheres in a periodic box, Maxwellian at

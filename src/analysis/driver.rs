@@ -247,6 +247,40 @@ pub struct Heterogeneity {
     pub wall_to_core_ratio: Option<f64>,
 }
 
+/// Number of equal height bands of [`HeightBand`] heterogeneity.
+pub const HEIGHT_BANDS: usize = 5;
+
+/// Heterogeneity of the solids fraction within one height band of the
+/// primary grid (`heterogeneity_by_height.csv`), to tell developing clusters
+/// (e.g. near a riser's outlet) from developed ones. Dense cells are those
+/// above `max(2 × band mean, 0.01)`, the band's own threshold.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct HeightBand {
+    /// Band limits, m above the box bottom.
+    pub height_lo: f64,
+    pub height_hi: f64,
+    pub mean_solids_fraction: f64,
+    pub std_over_mean: f64,
+    /// Counting noise, √(V̄_p / (ε̄ V_cell)), with the run's mean particle
+    /// volume.
+    pub poisson_std_over_mean: f64,
+    pub excess_std_over_mean: f64,
+    pub cluster_particle_fraction: f64,
+    /// Wall-layer over core mean solids fraction (`None` without side walls).
+    pub wall_to_core_ratio: Option<f64>,
+}
+
+/// Pass-2 sums of one height band: Σε, Σε², cell samples, particles,
+/// particles in dense cells, and [Σε, n] of wall and core cells.
+#[derive(Clone, Copy, Default)]
+struct BandSums {
+    eps: [f64; 3],
+    particles: u64,
+    clustered: u64,
+    wall: [f64; 2],
+    core: [f64; 2],
+}
+
 /// Velocity statistics on the primary grid without the cells that the TC
 /// model or the collapse guard affected.
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -372,6 +406,8 @@ pub struct AnalysisSummary {
     pub cell_size_dependence: Vec<CellSizeResult>,
     pub heights: Vec<f64>,
     pub heterogeneity: Heterogeneity,
+    /// The same per height band, bottom first.
+    pub heterogeneity_by_height: Vec<HeightBand>,
     pub pressure_drop: Option<PressureDropSummary>,
     pub energy: EnergySummary,
     pub ktgf: Option<KtgfSummary>,
@@ -1270,6 +1306,15 @@ pub fn analyse_run(run_dir: &Path, opts: &AnalyseOptions) -> anyhow::Result<Anal
     let mut hist = Histograms::new(opts.bins, &stats, d);
     let (mut in_clusters, mut particles_total) = (0u64, 0u64);
     let mut particle_volume_sum = 0.0;
+    let layers = grid.n[p.orient.vertical];
+    let band_of = |c: usize| p.orient.layer(&grid, c) * HEIGHT_BANDS / layers;
+    let mut band_mean = [[0.0f64; 2]; HEIGHT_BANDS];
+    for (c, e) in mean_eps_field.iter().enumerate() {
+        band_mean[band_of(c)][0] += e;
+        band_mean[band_of(c)][1] += 1.0;
+    }
+    let band_threshold = band_mean.map(|[s, n]| (CLUSTER_FACTOR * s / n.max(1.0)).max(CLUSTER_MIN));
+    let mut bands = [BandSums::default(); HEIGHT_BANDS];
     for path in &paths {
         let snap = Snapshot::read(path)?;
         if !used(&snap, opts.t_start) {
@@ -1290,6 +1335,24 @@ pub fn analyse_run(run_dir: &Path, opts: &AnalyseOptions) -> anyhow::Result<Anal
             .iter()
             .filter(|&&c| eps[c] > cluster_threshold)
             .count() as u64;
+        for (c, &e) in eps.iter().enumerate() {
+            let b = &mut bands[band_of(c)];
+            b.eps[0] += e;
+            b.eps[1] += e * e;
+            b.eps[2] += 1.0;
+            let side = if is_wall_cell(&grid, c, &p.orient, p.periodic, p.planar) {
+                &mut b.wall
+            } else {
+                &mut b.core
+            };
+            side[0] += e;
+            side[1] += 1.0;
+        }
+        for &c in &cells {
+            let b = band_of(c);
+            bands[b].particles += 1;
+            bands[b].clustered += u64::from(eps[c] > band_threshold[b]);
+        }
     }
 
     let out_dir = run_dir.join("analysis");
@@ -1509,6 +1572,51 @@ pub fn analyse_run(run_dir: &Path, opts: &AnalyseOptions) -> anyhow::Result<Anal
         wall_to_core_ratio: wall.zip(core).map(|(w, c)| w / c),
     };
 
+    let band_height = grid.h[o.vertical] * layers as f64 / HEIGHT_BANDS as f64;
+    let heterogeneity_by_height: Vec<HeightBand> = bands
+        .iter()
+        .enumerate()
+        .map(|(i, b)| {
+            let mean = b.eps[0] / b.eps[2];
+            let std_over_mean = (b.eps[1] / b.eps[2] - mean * mean).max(0.0).sqrt() / mean;
+            let poisson = (mean_particle_volume / (mean * super::grid::cell_volume(&grid))).sqrt();
+            HeightBand {
+                height_lo: i as f64 * band_height,
+                height_hi: (i + 1) as f64 * band_height,
+                mean_solids_fraction: mean,
+                std_over_mean,
+                poisson_std_over_mean: poisson,
+                excess_std_over_mean: (std_over_mean.powi(2) - poisson * poisson).max(0.0).sqrt(),
+                cluster_particle_fraction: b.clustered as f64 / b.particles.max(1) as f64,
+                wall_to_core_ratio: (side_walls && b.wall[1] > 0.0 && b.core[1] > 0.0)
+                    .then(|| (b.wall[0] / b.wall[1]) / (b.core[0] / b.core[1])),
+            }
+        })
+        .collect();
+    let mut t = header(&[
+        "height_lo_m",
+        "height_hi_m",
+        "mean_solids_fraction",
+        "std_over_mean",
+        "poisson_std_over_mean",
+        "excess_std_over_mean",
+        "cluster_particle_fraction",
+        "wall_to_core_ratio",
+    ]);
+    for b in &heterogeneity_by_height {
+        t.row(&[
+            b.height_lo,
+            b.height_hi,
+            b.mean_solids_fraction,
+            b.std_over_mean,
+            b.poisson_std_over_mean,
+            b.excess_std_over_mean,
+            b.cluster_particle_fraction,
+            b.wall_to_core_ratio.unwrap_or(f64::NAN),
+        ]);
+    }
+    write("heterogeneity_by_height.csv", &t)?;
+
     // KTGF test.
     let ktgf = match p.ktgf.take() {
         Some(Ok(k)) => {
@@ -1630,6 +1738,7 @@ pub fn analyse_run(run_dir: &Path, opts: &AnalyseOptions) -> anyhow::Result<Anal
         cell_size_dependence: results,
         heights: p.heights.clone(),
         heterogeneity,
+        heterogeneity_by_height,
         pressure_drop,
         energy,
         ktgf,

@@ -93,4 +93,6 @@ pub mod profiles;
 pub mod segregation;
 pub mod velocity;
 
-pub use driver::{AnalyseOptions, AnalysisSummary, FIGURES, analyse_cli, analyse_run};
+pub use driver::{
+    AnalyseOptions, AnalysisSummary, FIGURES, HEIGHT_BANDS, analyse_cli, analyse_run,
+};
