@@ -490,6 +490,18 @@ impl InletFeeder {
         }
     }
 
+    /// A warning when the inlet delivered less than 95 % of the mass its
+    /// flux asked for over `t` seconds (the zone was congested).
+    fn shortfall(&self, t: f64) -> Option<String> {
+        let asked = self.mass_rate * t;
+        (self.blocked && self.owed_mass > 0.05 * asked).then(|| {
+            format!(
+                "boundaries.inlet: the inlet zone was congested: it delivered {:.1} % of the {asked:.3e} kg that boundaries.inlet.solids_flux asked for; the particles inserted did not leave the zone fast enough (raise zone_height or the inlet velocity, or lower the flux)",
+                100.0 * (1.0 - self.owed_mass / asked)
+            )
+        })
+    }
+
     /// Particles owed by the mass flux that found no room in the inlet
     /// zone at the last attempt (the zone is congested).
     fn backlog(&self, s: &Scenario) -> usize {
@@ -798,8 +810,16 @@ fn simulate<Q: EventQueue>(
             RunStatus::Failed
         },
         error: outcome.as_ref().err().map(|e| format!("{e:#}")),
-        warnings: s.warnings.clone(),
+        warnings: s
+            .warnings
+            .iter()
+            .cloned()
+            .chain(feeder.as_ref().and_then(|f| f.shortfall(engine.time())))
+            .collect(),
     };
+    for w in summary.warnings.iter().skip(s.warnings.len()) {
+        eprintln!("edpm: warning: {w}");
+    }
     let json = serde_json::to_string_pretty(&summary).context("encoding summary")?;
     write_atomic(&out_dir.join("summary.json"), json.as_bytes())?;
     match outcome {

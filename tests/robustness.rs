@@ -616,3 +616,42 @@ fn damaged_or_unsuitable_checkpoints_are_refused() {
         ],
     );
 }
+
+/// An inlet flux the zone cannot take was fed at whatever rate fitted, with
+/// exit 0 and no word. A flux above a zone filled densely every flow step
+/// is refused; one the zone takes on paper but the inserted particles do
+/// not clear (they are not carried away fast enough) finishes with a
+/// warning in summary.json and on stderr that gives the delivered share.
+#[test]
+fn an_inlet_flux_the_zone_cannot_deliver_is_refused_or_reported() {
+    let err = scenario_error("riser-ideal.toml", &["boundaries.inlet.solids_flux=1e300"]);
+    assert_contains(
+        &err,
+        &[
+            "boundaries.inlet.solids_flux",
+            "more than the inlet zone can take",
+            "zone_height",
+        ],
+    );
+    let dir = fresh_dir("inlet-congested");
+    let o = run(
+        "scenarios/riser-ideal.toml",
+        &dir,
+        &[
+            "--t-end",
+            "0.01",
+            "--set",
+            "boundaries.inlet.solids_flux=20000",
+        ],
+    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert_contains(&stderr, &["edpm: warning:", "inlet zone was congested"]);
+    let warnings = summary(&dir)["warnings"].to_string();
+    assert_contains(&warnings, &["inlet zone was congested", "delivered"]);
+    // The shipped riser's feed is delivered: no such warning.
+    let dir = fresh_dir("inlet-delivered");
+    let o = run("scenarios/riser-ideal.toml", &dir, &["--t-end", "0.05"]);
+    assert!(o.status.success());
+    assert!(!summary(&dir)["warnings"].to_string().contains("congested"));
+}

@@ -37,8 +37,9 @@ defluidization sweep (python3 + numpy only).
    umf_ergun) is evaluated with both; Wen-Yu (umf_wen_yu) needs no eps.
 
 The measured pressure drop (gas_timeseries.csv pressure_drop_mean_Pa) is
-between the centres of the bottom and top cell layers; the gas hydrostatic
-head rho_g g (H - h_y) between them (0.7 Pa of about 214 Pa) is subtracted.
+between the centre of the bottom cell layer and the outlet face; the gas
+hydrostatic head rho_g g (H - h_y/2) between them (0.7 Pa of about 214 Pa)
+is subtracted.
 
 Writes results/fluidization/umf_sweep.csv and results/fluidization/README.md.
 
@@ -231,8 +232,10 @@ def weight_per_area(particles, sc):
 
 
 def hydrostatic(sc):
+    """Gas head between the bottom layer's centre and the outlet face, where
+    edpm's pressure drop is measured (src/gas/flow.rs)."""
     h_y = (sc["hi"][1] - sc["lo"][1]) / sc["cells"][1]
-    return sc["rho_g"] * sc["g"] * (sc["hi"][1] - sc["lo"][1] - h_y)
+    return sc["rho_g"] * sc["g"] * (sc["hi"][1] - sc["lo"][1] - 0.5 * h_y)
 
 
 def analyse(out, sc, t_from):
@@ -436,8 +439,8 @@ def main():
                  f"{args.packed_v2:g} m^2/s^2 and a steady dp (std < {args.steady:.1%}; else one run of twice "
                  "the length); dp is averaged over that window. Otherwise it "
                  f"is re-run for {args.t_fluid} s and averaged after {args.fluid_skip} s. dp is "
-                 "gas_timeseries.csv `pressure_drop_mean_Pa` (bottom minus top cell layer) minus the gas "
-                 f"hydrostatic head rho_g g (H - h_y) = {hydrostatic(sc):.3f} Pa. "
+                 "gas_timeseries.csv `pressure_drop_mean_Pa` (bottom cell layer minus the outlet face) minus the gas "
+                 f"hydrostatic head rho_g g (H - h_y/2) = {hydrostatic(sc):.3f} Pa. "
                  "`dp std` is the standard deviation of the 0.01 s interval means in the window.\n")
     for r in results:
         lines.append(f"## Seed {r['seed']}\n")
@@ -483,16 +486,10 @@ def main():
         f"- **Fluidized pressure drop.** The runs at the scenario's 1.0 m/s (about 2 u_mf) give a time-averaged "
         f"dp of {', '.join(f'{x:.3f}' for x in check_ratio)} W/A, the fluidized points of the sweep "
         f"{plateau_ratio:.3f} W/A on average (criterion: within 5 %). The bed oscillates (interval means "
-        "+-10 %, period about 0.15 s), so the average needs about 1 s. Over a window, <dp> A = W - <distributor "
-        "force> - (change of bed momentum)/T; the deficit is about 1 % of W carried by the bottom wall (plugs "
-        "falling back) and 2-3 % from the coupling: a particle whose mapping cube reaches into the half cell next "
-        "to the distributor (a fixed-velocity face) gets the pressure gradient of the first interior face "
-        "(weights renormalised), but the gas momentum equation of that face uses its own face gas fraction, "
-        "so the force eps_s grad p on the solids of that half cell is not taken from the gas. The particles "
-        "then carry about (1 - eps) h_y / (2 H_bed) of the weight without a pressure drop: 2-3 % with the "
-        "scenario's 1 mm cell layers, 10-12 % measured with 3 mm layers. This is why the scenario's cells are "
-        "1 mm high (an issue in src/gas/coupling.rs, reported; the fixed-bed branch is not affected, since "
-        "there the gas carries all drag).")
+        "+-10 %, period about 0.15 s), so the average needs about 1 s. Over a window, <dp> A = W - <force on "
+        "the distributor plate> - <force on the side walls> - (change of bed momentum)/T: gas and particles "
+        "exchange drag and pressure force exactly (docs/gas.md), so what the pressure drop does not carry is "
+        "carried by particles resting on or hitting the plate and the walls.")
     lines.append(
         f"- **Wen-Yu.** Wen-Yu's correlation gives {uwy:.4f} m/s, Ergun's u_mf at eps_mf = {eps_wy:.3f}. These "
         f"hard spheres (friction 0.1) pack to eps = {eps_h.mean():.3f} (bed height), and Ergun's u_mf varies as "

@@ -364,6 +364,27 @@ pub(super) fn check(ctx: &Ctx, s: &Scenario) -> R<Vec<String>> {
         }
     }
 
+    // ---- inlet capacity: a flow step can at most fill the inlet zone
+    if let (Some(rate), Some(inlet)) = (s.inlet_mass_rate(), &s.boundaries.inlet) {
+        let density = inlet
+            .population
+            .and_then(|k| s.materials[s.populations[k].material as usize].density)
+            .unwrap_or(0.0);
+        let axis = s.boundaries.outlet.map_or(1, |o| o.axis);
+        let e = s.domain.extent();
+        let zone_volume = e.x * e.y * e.z / e[axis] * inlet.zone_height;
+        let capacity = DENSE_PACKING * density * zone_volume / dt;
+        if rate > capacity {
+            return Err(ctx.err(
+                "boundaries.inlet.solids_flux",
+                format!(
+                    "asks for {rate:.3e} kg/s, more than the inlet zone can take: filled to a packing fraction of {DENSE_PACKING} every flow step it holds {capacity:.3e} kg/s (boundaries.inlet.zone_height = {} m, time.dt_flow = {dt:?} s); lower the flux or raise zone_height",
+                    inlet.zone_height
+                ),
+            ));
+        }
+    }
+
     // ---- gas: particles against cells, inflow Courant number, densities
     if let Some(gas) = &s.gas {
         check_gas(ctx, s, gas, &mut warnings)?;
