@@ -741,7 +741,7 @@ mod tests {
         let pairs = |cutoff: f64| {
             let mut found = Vec::new();
             for_each_pair_within(&points, side, cutoff, |i, j, r| found.push((i, j, r)));
-            found.sort_by(|a, b| (a.0, a.1).cmp(&(b.0, b.1)));
+            found.sort_by_key(|a| (a.0, a.1));
             found
         };
         let cells = pairs(1.5);

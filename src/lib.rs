@@ -26,4 +26,5 @@ pub mod replay;
 pub mod run;
 pub mod scenario;
 pub mod snapshot;
+pub mod sweep;
 pub mod vtk;

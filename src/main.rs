@@ -45,6 +45,36 @@ enum Command {
         #[arg(long, value_name = "STEPS")]
         log_checkpoint_steps: Option<u64>,
     },
+    /// Run a scenario over a grid of --set values (KEY=V1,V2,...), one
+    /// run per point in OUT/point-NNN, and tabulate each point's results
+    /// in OUT/sweep.csv and OUT/sweep.md.
+    Sweep {
+        /// Scenario file (TOML).
+        scenario: PathBuf,
+        /// KEY=V1,V2,... sweeps KEY over the values (commas inside [...],
+        /// {...} or quotes do not split); KEY=V fixes it for every point.
+        #[arg(long = "set", value_name = "KEY=VALUES", required = true)]
+        sets: Vec<String>,
+        /// Output directory of the sweep.
+        #[arg(long, default_value = "out/sweep")]
+        out: PathBuf,
+        /// End time of every run (s), overriding time.t_end.
+        #[arg(long)]
+        t_end: Option<f64>,
+        /// Runs at once (default: the number of cores).
+        #[arg(long)]
+        jobs: Option<usize>,
+        /// Table columns: dotted paths into summary.json
+        /// (counters.pair_collisions), or FILE.csv:COLUMN for the time
+        /// average of a column of the run's FILE.csv (default: particles,
+        /// collisions, kinetic energy, CPU time, and the pressure drop of
+        /// gas runs).
+        #[arg(long, value_delimiter = ',')]
+        columns: Vec<String>,
+        /// Time averages of FILE.csv:COLUMN columns start here (s).
+        #[arg(long, default_value_t = 0.0)]
+        average_after: f64,
+    },
     /// Rebuild a run from its event log alone.
     Replay {
         /// Event log written by `edpm run --log`.
@@ -206,6 +236,27 @@ fn main() -> ExitCode {
             };
             edpm::run::run_cli(&scenario, out.as_deref(), t_end, &overrides, &opts)
         }
+        Command::Sweep {
+            scenario,
+            sets,
+            out,
+            t_end,
+            jobs,
+            columns,
+            average_after,
+        } => edpm::sweep::sweep_cli(
+            &scenario,
+            &edpm::sweep::SweepOptions {
+                sets,
+                out,
+                t_end,
+                jobs: jobs.unwrap_or_else(|| {
+                    std::thread::available_parallelism().map_or(1, std::num::NonZeroUsize::get)
+                }),
+                columns,
+                average_after,
+            },
+        ),
         Command::Replay {
             log,
             at,
