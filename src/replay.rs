@@ -133,6 +133,7 @@ pub fn replay_log(path: &Path, opts: &ReplayOptions) -> anyhow::Result<(ReplayOu
     };
     // Whether the replay ran to the end of the log (not stopped at `at`).
     let mut reached_end = true;
+    let mut blocks = 0u64;
     'blocks: loop {
         let block = reader.next_block().map_err(|e| {
             anyhow::anyhow!(
@@ -142,6 +143,7 @@ pub fn replay_log(path: &Path, opts: &ReplayOptions) -> anyhow::Result<(ReplayOu
             )
         })?;
         let Some(block) = block else { break };
+        blocks += 1;
         match block {
             Block::Records(records) => {
                 for r in &records {
@@ -186,6 +188,16 @@ pub fn replay_log(path: &Path, opts: &ReplayOptions) -> anyhow::Result<(ReplayOu
                 }
             }
         }
+    }
+    if blocks == 0 {
+        anyhow::bail!(
+            "{}: the log holds no blocks (no records and no checkpoints){}: nothing to replay",
+            path.display(),
+            match reader.truncated_at {
+                Some(offset) => format!("; it is cut at byte {offset}, inside its first block"),
+                None => "; the run that wrote it ended before its first block".to_string(),
+            }
+        );
     }
     if let Some(t) = opts.at
         && reached_end

@@ -326,6 +326,43 @@ fn truncated_corrupted_and_foreign_logs_give_exact_errors() {
         )
     );
 
+    // A log without blocks (only its header) is an error, not "0 records,
+    // bit-identical"; cut inside the first block, it says where.
+    let empty = damaged_copy(&log, "empty.log", |b| b.truncate(offsets[0] as usize));
+    for opts in [
+        ReplayOptions::default(),
+        ReplayOptions {
+            verify: true,
+            ..Default::default()
+        },
+        ReplayOptions {
+            stats: true,
+            ..Default::default()
+        },
+    ] {
+        let err = replay_log(&empty, &opts).unwrap_err().to_string();
+        assert_eq!(
+            err,
+            format!(
+                "{}: the log holds no blocks (no records and no checkpoints); the run that wrote it ended before its first block: nothing to replay",
+                empty.display()
+            )
+        );
+    }
+    let first_cut = damaged_copy(&log, "first-cut.log", |b| {
+        b.truncate(offsets[0] as usize + 10)
+    });
+    let err = replay_log(&first_cut, &ReplayOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.ends_with(&format!(
+            "; it is cut at byte {}, inside its first block: nothing to replay",
+            offsets[0]
+        )),
+        "{err}"
+    );
+
     // Not a log at all.
     let other = damaged_copy(&log, "other.log", |b| b[0] = b'X');
     let err = replay_log(&other, &ReplayOptions::default())
