@@ -45,6 +45,19 @@ enum Command {
         #[arg(long, value_name = "STEPS")]
         log_checkpoint_steps: Option<u64>,
     },
+    /// Validate a scenario: print it resolved (every default filled in,
+    /// with units) on stdout, and particles, gas cells, flow steps, the
+    /// memory estimate and the warnings on stderr.
+    Check {
+        /// Scenario file (TOML).
+        scenario: PathBuf,
+        /// End time in seconds, overriding time.t_end.
+        #[arg(long)]
+        t_end: Option<f64>,
+        /// Override any scenario key, e.g. --set collisions.default.e_n=0.8
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        overrides: Vec<String>,
+    },
     /// Run a scenario over a grid of --set values (KEY=V1,V2,...), one
     /// run per point in OUT/point-NNN, and tabulate each point's results
     /// in OUT/sweep.csv and OUT/sweep.md.
@@ -236,6 +249,11 @@ fn main() -> ExitCode {
             };
             edpm::run::run_cli(&scenario, out.as_deref(), t_end, &overrides, &opts)
         }
+        Command::Check {
+            scenario,
+            t_end,
+            overrides,
+        } => edpm::check::check_cli(&scenario, t_end, &overrides),
         Command::Sweep {
             scenario,
             sets,

@@ -573,6 +573,8 @@ fn simulate<Q: EventQueue>(
         sn.write(&engine, gas.as_ref())?;
     }
     write_atomic(&out_dir.join("scenario.toml"), s.effective_toml.as_bytes())?;
+    let resolved = crate::scenario::resolved_toml(s);
+    write_atomic(&out_dir.join("resolved.toml"), resolved.as_bytes())?;
     let mut analysis = s.output.snapshot_interval.map(|interval| {
         engine.set_recording(true);
         AnalysisSnapshots::new(s, out_dir, interval, gas.as_ref())

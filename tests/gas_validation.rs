@@ -683,6 +683,8 @@ fn pulsed_jet_adds_exactly_its_mass_to_a_closed_box() {
         hi: false,
         lo: DVec3::new(0.03, 0.0, 0.0),
         hi_corner: DVec3::new(0.05, 0.0, depth),
+        given_centre: DVec3::new(0.04, 0.0, 0.5 * depth),
+        given_size: DVec3::new(0.02, 0.0, depth),
         velocity: 10.0,
         start: 0.0,
         period: 0.004,

@@ -117,6 +117,11 @@ pub struct Jet {
     /// along `axis` is ignored. In planar mode the z range is the bed depth.
     pub lo: DVec3,
     pub hi_corner: DVec3,
+    /// `centre` and `size` of the patch as given in the scenario (m), from
+    /// which `lo` and `hi_corner` were computed; kept to write the scenario
+    /// back (`resolved.toml`) without round-off.
+    pub given_centre: DVec3,
+    pub given_size: DVec3,
     /// Superficial velocity into the domain while the jet is on (m/s).
     pub velocity: f64,
     /// Pulsing: the jet is on during `[start + k·period, start + k·period + on_time)`;

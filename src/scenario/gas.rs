@@ -460,6 +460,8 @@ pub(super) fn validate_gas(
             hi: on_hi,
             lo: plo,
             hi_corner: phi,
+            given_centre: centre,
+            given_size: size,
             velocity,
             start,
             period,

@@ -97,7 +97,9 @@ impl MemoryEstimate {
             + self.time_series
     }
 
-    fn describe(&self) -> String {
+    /// The parts of at least 1 MB, e.g. `particles 0.012 GB, gas grid
+    /// 0.003 GB`.
+    pub fn describe(&self) -> String {
         let parts = [
             ("particles", self.particles),
             ("neighbour lists", self.neighbour_lists),
@@ -115,7 +117,8 @@ impl MemoryEstimate {
     }
 }
 
-fn gigabytes(bytes: f64) -> String {
+/// `bytes` as `0.123 GB`.
+pub fn gigabytes(bytes: f64) -> String {
     format!("{:.3} GB", bytes / 1e9)
 }
 
@@ -143,7 +146,7 @@ struct Particles {
 /// Largest number of particles an inlet feed can add over the run: the
 /// fed mass over the lightest particle's mass, at most what fits the
 /// domain in a dense packing.
-fn inlet_particles(s: &Scenario) -> f64 {
+pub fn inlet_particles(s: &Scenario) -> f64 {
     let (Some(rate), Some(k)) = (
         s.inlet_mass_rate(),
         s.boundaries.inlet.as_ref().and_then(|i| i.population),
@@ -391,20 +394,32 @@ pub(super) fn check(ctx: &Ctx, s: &Scenario) -> R<Vec<String>> {
     }
 
     // ---- memory
-    let d_max = s.max_diameter();
-    if d_min.is_finite() {
-        let count = s.total_count() as f64 + inlet_particles(s);
-        let m = memory_estimate(
-            s,
-            Particles {
-                count,
-                d_min,
-                d_max,
-            },
-        );
+    if let Some(m) = scenario_memory(s) {
         check_memory(ctx, &m, memory_field(s, &m))?;
     }
     Ok(warnings)
+}
+
+/// The memory a run of `s` needs at most (bytes), as validation checks it:
+/// the populations' particles plus what an inlet can feed
+/// ([`inlet_particles`]); `None` without populations (a checkpoint's
+/// particles are estimated when the run loads them).
+pub fn scenario_memory(s: &Scenario) -> Option<MemoryEstimate> {
+    let d_min = s
+        .populations
+        .iter()
+        .map(|p| p.diameter.min())
+        .fold(f64::INFINITY, f64::min);
+    d_min.is_finite().then(|| {
+        memory_estimate(
+            s,
+            Particles {
+                count: s.total_count() as f64 + inlet_particles(s),
+                d_min,
+                d_max: s.max_diameter(),
+            },
+        )
+    })
 }
 
 /// The field most responsible for a memory estimate.

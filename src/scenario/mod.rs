@@ -16,6 +16,7 @@ pub mod limits;
 mod locate;
 mod overrides;
 mod raw;
+mod resolved;
 mod validate;
 
 use std::path::{Path, PathBuf};
@@ -26,6 +27,7 @@ use crate::collision::ContactParams;
 
 pub use diameter::Diameter;
 pub(crate) use diameter::gaussian;
+pub use resolved::resolved_toml;
 pub(crate) use validate::scenario_error;
 
 /// Line and column (both 1-based, column in characters) in the scenario text.
