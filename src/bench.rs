@@ -14,6 +14,7 @@
 //! crystal is never mistaken for the fluid.
 
 use crate::random::standard_normal;
+use crate::timing::cpu_time;
 use glam::DVec3;
 use rand::SeedableRng;
 use rand_xoshiro::Xoshiro256PlusPlus;
@@ -149,18 +150,6 @@ pub struct BenchResult {
 /// Carnahan–Starling compressibility factor Z = βP/ρ.
 pub fn carnahan_starling_z(phi: f64) -> f64 {
     (1.0 + phi + phi * phi - phi * phi * phi) / (1.0 - phi).powi(3)
-}
-
-/// Process CPU time (s).
-pub fn cpu_time() -> f64 {
-    let mut ts = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: clock_gettime writes into the timespec we pass and has no
-    // other effect; CLOCK_PROCESS_CPUTIME_ID is supported on Linux.
-    unsafe { libc::clock_gettime(libc::CLOCK_PROCESS_CPUTIME_ID, &mut ts) };
-    ts.tv_sec as f64 + 1e-9 * ts.tv_nsec as f64
 }
 
 /// Resident set size of this process (bytes): `(current, peak)`, from

@@ -28,4 +28,5 @@ pub mod run;
 pub mod scenario;
 pub mod snapshot;
 pub mod sweep;
+pub mod timing;
 pub mod vtk;

@@ -552,7 +552,7 @@ fn simulate<Q: EventQueue>(
     opts: &RunOptions,
 ) -> anyhow::Result<Summary> {
     let wall_start = Instant::now();
-    let cpu_start = crate::bench::cpu_time();
+    let cpu_start = crate::timing::cpu_time();
     let mut engine = build_engine::<Q>(s)?;
     let mut gas = GasRun::new(s);
     if let Some(g) = gas.as_mut() {
@@ -619,7 +619,7 @@ fn simulate<Q: EventQueue>(
     let mut series = CsvTable::new(&TIME_SERIES_HEADER);
     let mut gas_series = CsvTable::new(&GAS_SERIES_HEADER);
     if let Some(g) = gas.as_mut() {
-        g.sample_row(&mut gas_series);
+        gas_series.row(&g.sample_row());
     }
     let mut last = engine.counters;
     let mut last_time = 0.0;
@@ -714,7 +714,7 @@ fn simulate<Q: EventQueue>(
                 collapse_seen = engine.collapse_reports.len();
                 sample_interval_row(&engine, &mut series, &last, t - last_time, new_reports);
                 if let Some(g) = gas.as_mut() {
-                    g.sample_row(&mut gas_series);
+                    gas_series.row(&g.sample_row());
                 }
                 last = engine.counters;
                 last_time = t;
@@ -753,7 +753,7 @@ fn simulate<Q: EventQueue>(
         }
         None => None,
     };
-    let cpu_seconds = crate::bench::cpu_time() - cpu_start;
+    let cpu_seconds = crate::timing::cpu_time() - cpu_start;
     series.write(&out_dir.join("timeseries.csv"))?;
     if gas.is_some() {
         gas_series.write(&out_dir.join("gas_timeseries.csv"))?;
@@ -1177,7 +1177,7 @@ impl Snapshots {
         self.particles.write()?;
         if let (Some(series), Some(g)) = (self.gas.as_mut(), gas) {
             let name = format!("gas_{:06}.vti", self.count);
-            g.write_vtk(&self.dir.join(&name))?;
+            write_gas_vtk(g, &self.dir.join(&name))?;
             series.push(t, format!("vtk/{name}"));
             series.write()?;
         }
@@ -1185,6 +1185,27 @@ impl Snapshots {
         self.next = next_multiple(t, self.interval);
         Ok(())
     }
+}
+
+/// The gas fields of `g` as a VTK file for ParaView (format from the
+/// extension: `.vti` XML ImageData in the `.pvd` series).
+fn write_gas_vtk(g: &GasRun, path: &Path) -> anyhow::Result<()> {
+    let empty: &[f64] = &[];
+    let g = &g.gas;
+    crate::vtk::write_gas(
+        path,
+        &g.grid,
+        &crate::vtk::GasFields {
+            gas_fraction: &g.gas_fraction,
+            pressure: &g.pressure,
+            density: &g.density,
+            face_velocity: [
+                &g.velocity[0],
+                &g.velocity[1],
+                if g.grid.planar { empty } else { &g.velocity[2] },
+            ],
+        },
+    )
 }
 
 /// One time-series row. Collision counts, dissipation and the collisional

@@ -50,7 +50,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, bail, ensure};
 use glam::DVec3;
 
-use crate::gas::GridGeometry;
+use crate::domain::grid::GridGeometry;
 use crate::output::write_atomic;
 
 /// One particle as written to VTK.

@@ -15,6 +15,7 @@ use glam::DVec3;
 use serde::Serialize;
 
 use super::energy::{EnergyBudget, energy_budget};
+use super::figure_spec::{FIGURES, FigureSpec};
 use super::grid::{
     cell_centre, cell_coords, cell_sums, cell_volume, grid_for_cell_size, single_cell_grid,
     solids_fraction,
@@ -81,108 +82,6 @@ pub const KTGF_BIN_WIDTH: f64 = 0.02;
 /// `max(CLUSTER_FACTOR × mean, CLUSTER_MIN)` count as dense clusters.
 pub const CLUSTER_FACTOR: f64 = 2.0;
 pub const CLUSTER_MIN: f64 = 0.01;
-
-/// A figure the plotting code (src/plot.rs) is meant to draw from a CSV
-/// written here.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
-pub struct FigureSpec {
-    /// PNG file name in `RUN_DIR/analysis/`.
-    pub name: &'static str,
-    /// CSV file in `RUN_DIR/analysis/`.
-    pub data: &'static str,
-    pub x: &'static str,
-    /// Columns to draw against `x` (missing columns, e.g. z in planar
-    /// mode, are left out).
-    pub y: &'static [&'static str],
-    pub what: &'static str,
-}
-
-/// The figures planned for the analysis (drawn by src/plot.rs).
-pub const FIGURES: &[FigureSpec] = &[
-    FigureSpec {
-        name: "velocity_distribution.png",
-        data: "velocity_distribution.csv",
-        x: "c_over_sigma",
-        y: &[
-            "f_x", "f_y", "f_z", "f_x_cell", "f_y_cell", "f_z_cell", "gaussian",
-        ],
-        what: "pooled f(C_i/σ_i) and per-cell f(C_i/√T_c) vs the Gaussian",
-    },
-    FigureSpec {
-        name: "speed_distribution.png",
-        data: "speed_distribution.csv",
-        x: "c_over_sqrt_T",
-        y: &["f", "f_cell", "maxwellian"],
-        what: "pooled f(|C|/√T) and per-cell f(|C|/√T_c) vs Maxwell",
-    },
-    FigureSpec {
-        name: "temperature_timeseries.png",
-        data: "temperature_timeseries.csv",
-        x: "time_s",
-        y: &["T_m2_s2", "T_rot_m2_s2", "T_global_m2_s2"],
-        what: "granular temperatures against time",
-    },
-    FigureSpec {
-        name: "cell_size_dependence.png",
-        data: "cell_size_dependence.csv",
-        x: "cell_size_m",
-        y: &["T_m2_s2", "sonine_a2"],
-        what: "T and a2 against the analysis cell size",
-    },
-    FigureSpec {
-        name: "profiles_width.png",
-        data: "profiles_width.csv",
-        x: "width_m",
-        y: &["solids_fraction", "solids_flux_kg_m2_s"],
-        what: "lateral profiles, one line per height_m",
-    },
-    FigureSpec {
-        name: "profile_height.png",
-        data: "profile_height.csv",
-        x: "height_m",
-        y: &["solids_fraction"],
-        what: "solids hold-up along the height",
-    },
-    FigureSpec {
-        name: "pressure_drop.png",
-        data: "pressure_drop.csv",
-        x: "time_s",
-        y: &["pressure_drop_Pa", "bed_weight_per_area_Pa"],
-        what: "gas pressure drop against the bed weight (gas runs)",
-    },
-    FigureSpec {
-        name: "energy_budget.png",
-        data: "energy_budget.csv",
-        x: "time_s",
-        y: &["potential_J", "convective_J", "granular_J", "rotational_J"],
-        what: "energy budget against time",
-    },
-    FigureSpec {
-        name: "ktgf_pressure.png",
-        data: "ktgf_binned.csv",
-        x: "solids_fraction",
-        y: &["pc_measured_Pa", "pc_ktgf_Pa", "pc_ktgf_ma_Pa"],
-        what: "collisional pressure vs KTGF (cells without TC/guard)",
-    },
-    FigureSpec {
-        name: "ktgf_dissipation.png",
-        data: "ktgf_binned.csv",
-        x: "solids_fraction",
-        y: &[
-            "gamma_n_measured_W_m3",
-            "gamma_n_ktgf_W_m3",
-            "gamma_n_ktgf_ma_W_m3",
-        ],
-        what: "normal dissipation vs KTGF (cells without TC/guard)",
-    },
-    FigureSpec {
-        name: "segregation.png",
-        data: "segregation.csv",
-        x: "time_s",
-        y: &["segregation_index"],
-        what: "degree of segregation (bidisperse beds)",
-    },
-];
 
 /// An analysis grid.
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -416,67 +315,6 @@ pub struct AnalysisSummary {
     /// Files written into `output_dir`.
     pub files: Vec<String>,
     pub figures_planned: Vec<FigureSpec>,
-}
-
-/// `edpm analyse`: analyses `run_dir` and prints a short report.
-pub fn analyse_cli(
-    run_dirs: &[std::path::PathBuf],
-    opts: &AnalyseOptions,
-    compare_out: Option<&Path>,
-) -> anyhow::Result<()> {
-    let mut summaries = Vec::new();
-    for run_dir in run_dirs {
-        let s = analyse_one(run_dir, opts)?;
-        summaries.push((run_dir.as_path(), s));
-    }
-    if summaries.len() >= 2 {
-        let out = match compare_out {
-            Some(dir) => dir.to_path_buf(),
-            None => run_dirs[0]
-                .parent()
-                .unwrap_or(Path::new("."))
-                .join("comparison"),
-        };
-        let files = super::compare::compare_runs(&summaries, &out)?;
-        eprintln!(
-            "edpm: comparison of {} runs in {}: {}",
-            summaries.len(),
-            out.display(),
-            files.join(", ")
-        );
-        eprint!(
-            "{}",
-            std::fs::read_to_string(out.join("comparison.md")).unwrap_or_default()
-        );
-    }
-    Ok(())
-}
-
-/// Analyses one run and prints its headline figures.
-fn analyse_one(run_dir: &Path, opts: &AnalyseOptions) -> anyhow::Result<AnalysisSummary> {
-    let s = analyse_run(run_dir, opts)?;
-    let v = &s.velocity;
-    eprintln!(
-        "edpm: analysed {} of {} snapshots (t = {:.4} to {:.4} s): T = {:.4e} m²/s², \
-         T_rot = {:.4e} m²/s², a2 = {:.4} ± {:.4} (each cell normalised by its own T: {:.4} ± {:.4}), \
-         solids fraction std/mean = {:.3}; results in {}",
-        s.snapshots_used,
-        s.snapshots_total,
-        s.t_first,
-        s.t_last,
-        v.temperature,
-        v.temperature_rotational,
-        v.sonine_a2,
-        v.sonine_a2_se,
-        v.sonine_a2_cell_normalised,
-        v.sonine_a2_cell_normalised_se,
-        s.heterogeneity.std_over_mean,
-        s.output_dir
-    );
-    for note in &s.notes {
-        eprintln!("edpm: note: {note}");
-    }
-    Ok(s)
 }
 
 fn check_options(o: &AnalyseOptions) -> anyhow::Result<()> {

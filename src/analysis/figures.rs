@@ -7,7 +7,7 @@ use std::path::Path;
 
 use anyhow::Context;
 
-use super::driver::{FIGURES, FigureSpec};
+use super::figure_spec::{FIGURES, FigureSpec};
 use crate::plot::{self, ParticlePanel, Series};
 use crate::snapshot::Snapshot;
 

@@ -83,9 +83,11 @@
 //! Values that are undefined (an empty cell's temperature) are written as
 //! `NaN` in CSV and `null` in JSON.
 
+mod cli;
 mod compare;
 pub mod driver;
 pub mod energy;
+pub mod figure_spec;
 mod figures;
 pub mod grid;
 pub mod ktgf;
@@ -93,6 +95,6 @@ pub mod profiles;
 pub mod segregation;
 pub mod velocity;
 
-pub use driver::{
-    AnalyseOptions, AnalysisSummary, FIGURES, HEIGHT_BANDS, analyse_cli, analyse_run,
-};
+pub use cli::analyse_cli;
+pub use driver::{AnalyseOptions, AnalysisSummary, HEIGHT_BANDS, analyse_run};
+pub use figure_spec::FIGURES;

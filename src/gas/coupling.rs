@@ -40,9 +40,9 @@ use glam::DVec3;
 
 use super::config::PlanarPorosity;
 use super::drag::particle_drag_coefficient;
-use super::grid::GridGeometry;
 use super::mapping::{AxisWeights, axis_weights_into, hoomans_2d_to_3d, mapping_side};
 use super::solver::GasPhase;
+use crate::domain::grid::GridGeometry;
 use crate::engine::ParticleView;
 
 /// Lowest gas fraction handed to the gas solver and drag laws. Random

@@ -2,19 +2,32 @@
 //! Sec. 4: gas fraction and drag coefficients from the particles, the gas
 //! step with implicit drag, then the drag, pressure-gradient and gravity
 //! kicks on the particles. The engine then processes the collisions of
-//! the step. Also the gas time series and VTK snapshots.
-
-use std::path::Path;
+//! the step. Also the rows of the gas time series; writing them (and the
+//! gas VTK fields) is the recorders' work (`crate::run::recorders`).
 
 use glam::DVec3;
 
+use super::config::GasConfig;
 use super::coupling::Coupling;
-use super::grid::GridGeometry;
 use super::solver::{GasError, GasPhase};
+use crate::domain::grid::GridGeometry;
 use crate::engine::Engine;
-use crate::output::CsvTable;
 use crate::queue::EventQueue;
-use crate::scenario::Scenario;
+
+/// What a gas run is built from: the resolved `[gas]` configuration, the
+/// grid over the box and gravity (m/s²).
+pub struct GasSetup {
+    pub config: GasConfig,
+    pub grid: GridGeometry,
+    pub gravity: DVec3,
+}
+
+/// A source of [`GasSetup`] (implemented by `crate::scenario::Scenario`),
+/// so that the gas phase does not depend on the scenario format.
+pub trait GasSource {
+    /// `None` without a gas phase.
+    fn gas_setup(&self) -> Option<GasSetup>;
+}
 
 /// Gas phase and coupling state of a run.
 pub struct GasRun {
@@ -70,28 +83,29 @@ pub const GAS_SERIES_HEADER: [&str; 8] = [
 ];
 
 impl GasRun {
-    pub fn new(s: &Scenario) -> Option<Self> {
-        let config = s.gas.clone()?;
-        let grid = GridGeometry::new(
-            s.domain.lo,
-            s.domain.hi,
-            config.cells,
-            std::array::from_fn(|a| s.boundaries.is_periodic(a)),
-            s.domain.planar,
-        );
-        let gravity = s.domain.gravity;
+    /// The gas run of `source`, `None` without a gas phase.
+    pub fn new(source: &impl GasSource) -> Option<Self> {
+        source.gas_setup().map(Self::from_setup)
+    }
+
+    pub fn from_setup(setup: GasSetup) -> Self {
+        let GasSetup {
+            config,
+            grid,
+            gravity,
+        } = setup;
         let pressure_axis = (gravity != DVec3::ZERO).then(|| {
             (0..3)
                 .max_by(|&a, &b| gravity[a].abs().total_cmp(&gravity[b].abs()))
                 .unwrap_or(1)
         });
-        Some(GasRun {
+        GasRun {
             gas: GasPhase::new(grid, config, gravity),
             coupling: Coupling::default(),
             pressure_axis,
             totals: GasTotals::default(),
             interval: IntervalStats::default(),
-        })
+        }
     }
 
     /// Gas fraction from the initial particles, before the first step.
@@ -110,12 +124,12 @@ impl GasRun {
     /// Gas step and particle kicks for a flow step of `dt`; the engine must
     /// be synchronised (right after [`Engine::end_flow_step`]).
     pub fn step<Q: EventQueue>(&mut self, engine: &mut Engine<Q>, dt: f64) -> Result<(), GasError> {
-        let start = crate::bench::cpu_time();
+        let start = crate::timing::cpu_time();
         let slots = (0..engine.slots()).map(|i| engine.particle(i));
         self.coupling.prepare(&mut self.gas, slots.clone(), dt);
-        let solver_start = crate::bench::cpu_time();
+        let solver_start = crate::timing::cpu_time();
         let stats = self.gas.step(dt)?;
-        self.totals.solver_cpu_seconds += crate::bench::cpu_time() - solver_start;
+        self.totals.solver_cpu_seconds += crate::timing::cpu_time() - solver_start;
         let kicks = self.coupling.kicks(&self.gas, slots, dt);
         engine.kick_slots(kicks);
         let courant = self.gas.courant(dt);
@@ -136,7 +150,7 @@ impl GasRun {
         i.linear += stats.linear_iterations as u64;
         i.courant = i.courant.max(courant);
         i.pressure_drop_sum += pressure_drop;
-        t.gas_cpu_seconds += crate::bench::cpu_time() - start;
+        t.gas_cpu_seconds += crate::timing::cpu_time() - start;
         Ok(())
     }
 
@@ -175,8 +189,9 @@ impl GasRun {
         }
     }
 
-    /// One row of `gas_timeseries.csv`; resets the interval statistics.
-    pub fn sample_row(&mut self, series: &mut CsvTable) {
+    /// One row of `gas_timeseries.csv` (columns [`GAS_SERIES_HEADER`]);
+    /// resets the interval statistics.
+    pub fn sample_row(&mut self) -> [f64; GAS_SERIES_HEADER.len()] {
         let i = std::mem::take(&mut self.interval);
         let steps = i.steps.max(1) as f64;
         let min_eps = self
@@ -185,7 +200,7 @@ impl GasRun {
             .iter()
             .copied()
             .fold(f64::INFINITY, f64::min);
-        series.row(&[
+        [
             self.gas.time,
             self.pressure_drop(),
             if i.steps > 0 {
@@ -198,26 +213,6 @@ impl GasRun {
             i.linear as f64 / steps,
             i.courant,
             min_eps,
-        ]);
-    }
-
-    /// Gas fields as legacy VTK for ParaView.
-    pub fn write_vtk(&self, path: &Path) -> anyhow::Result<()> {
-        let empty: &[f64] = &[];
-        let g = &self.gas;
-        crate::vtk::write_gas(
-            path,
-            &g.grid,
-            &crate::vtk::GasFields {
-                gas_fraction: &g.gas_fraction,
-                pressure: &g.pressure,
-                density: &g.density,
-                face_velocity: [
-                    &g.velocity[0],
-                    &g.velocity[1],
-                    if g.grid.planar { empty } else { &g.velocity[2] },
-                ],
-            },
-        )
+        ]
     }
 }

@@ -23,7 +23,7 @@
 //! fixed-capacity `Copy` value.
 
 use super::config::{PlanarPorosity, PorosityMapping};
-use super::grid::GridGeometry;
+use crate::domain::grid::GridGeometry;
 use glam::DVec3;
 use std::f64::consts::PI;
 

@@ -29,8 +29,8 @@
 use glam::DVec3;
 
 use super::config::{GasConfig, GasFace, PressureSolverKind};
-use super::grid::GridGeometry;
 use super::linear::{BandedCholesky, Pcg, PressureSolver, SolveError, StencilMatrix};
+use crate::domain::grid::GridGeometry;
 
 /// How the velocity on a face is determined.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -3,8 +3,8 @@
 
 use glam::DVec3;
 
+use super::ctx::Ctx;
 use super::raw::{RawCoupling, RawGas, RawGasFace, RawGasModel, RawInt, RawPorosity};
-use super::validate::Ctx;
 use super::{AxisBoundary, Boundaries, Domain, ScenarioError};
 use crate::gas::{
     DragLaw, GasConfig, GasFace, GasModel, Jet, PlanarPorosity, PorosityMapping, PressureSolverKind,

@@ -8,7 +8,7 @@ use std::f64::consts::PI;
 
 use glam::DVec3;
 
-use super::validate::Ctx;
+use super::ctx::Ctx;
 use super::{AxisBoundary, Scenario, ScenarioError};
 use crate::gas::mapping::{MAX_SPAN, mapping_side};
 use crate::gas::{GasConfig, GasFace, PorosityMapping, PressureSolverKind};
@@ -484,7 +484,7 @@ fn check_gas(ctx: &Ctx, s: &Scenario, gas: &GasConfig, warnings: &mut Vec<String
     let d_max = s.max_diameter();
     if d_max > 0.0 {
         let side = mapping_side(
-            &crate::gas::GridGeometry::new(
+            &crate::domain::grid::GridGeometry::new(
                 s.domain.lo,
                 s.domain.hi,
                 gas.cells,
@@ -630,7 +630,7 @@ pub fn check_loaded(s: &Scenario, loaded: &[NewParticle]) -> Result<(), Scenario
         ));
     }
     if let Some(gas) = &s.gas {
-        let grid = crate::gas::GridGeometry::new(
+        let grid = crate::domain::grid::GridGeometry::new(
             s.domain.lo,
             s.domain.hi,
             gas.cells,

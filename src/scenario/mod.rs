@@ -10,6 +10,7 @@
 //! value found, plus the line and column when the field comes from the file.
 //! No input makes this module panic.
 
+mod ctx;
 mod diameter;
 mod gas;
 pub mod limits;
@@ -404,6 +405,25 @@ pub struct Scenario {
     pub warnings: Vec<String>,
 }
 
+/// The gas phase of a scenario as the gas solver takes it.
+impl crate::gas::flow::GasSource for Scenario {
+    fn gas_setup(&self) -> Option<crate::gas::flow::GasSetup> {
+        let config = self.gas.clone()?;
+        let grid = crate::domain::grid::GridGeometry::new(
+            self.domain.lo,
+            self.domain.hi,
+            config.cells,
+            std::array::from_fn(|a| self.boundaries.is_periodic(a)),
+            self.domain.planar,
+        );
+        Some(crate::gas::flow::GasSetup {
+            config,
+            grid,
+            gravity: self.domain.gravity,
+        })
+    }
+}
+
 impl Scenario {
     /// Reads and validates a scenario file.
     pub fn from_file(path: impl AsRef<Path>) -> Result<Scenario, ScenarioError> {
@@ -463,7 +483,7 @@ impl Scenario {
                 })?;
             overridden.push(p);
         }
-        let ctx = validate::Ctx {
+        let ctx = ctx::Ctx {
             file: name,
             text,
             overridden: &overridden,

@@ -1,4 +1,7 @@
-//! The simulation box: plane walls, periodic axes, planar mode, outlet.
+//! The simulation box: plane walls, periodic axes, planar mode, outlet;
+//! and the uniform staggered grid laid over it ([`grid`]).
+
+pub mod grid;
 
 use glam::DVec3;
 
