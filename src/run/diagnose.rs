@@ -1,0 +1,213 @@
+//! Sanity checks of a run in progress and the error messages of a run that
+//! fails them: particles faster than the event clock resolves, outside the
+//! domain or non-finite, a stalled event loop (the engine's watchdog), a
+//! failed gas step; each message names the likely causes with the run's
+//! values.
+
+use crate::engine::{BadParticle, Engine};
+use crate::gas::flow::GasRun;
+use crate::queue::EventQueue;
+use crate::scenario::Scenario;
+
+/// Likely causes of a failed gas step, with the scenario's values.
+pub(super) fn gas_failure_causes(g: &GasRun, dt: f64) -> String {
+    let grid = &g.gas.grid;
+    let mut causes = Vec::new();
+    let now = g.gas.courant(dt);
+    let reached = if now.is_finite() {
+        g.totals.max_courant.max(now)
+    } else {
+        g.totals.max_courant
+    };
+    let inflows = crate::scenario::limits::gas_inflow_speeds(&g.gas.config);
+    let fastest = inflows
+        .iter()
+        .max_by(|a, b| (a.1 / grid.h[a.2]).total_cmp(&(b.1 / grid.h[b.2])))
+        .map(|(field, v, axis)| {
+            let h = grid.h[*axis];
+            format!(
+                " (the fastest inflow, {field} = {v:?} m/s, alone gives {:.3} with cells of {h:.3e} m; the gas speeds up where the gas fraction is low)",
+                v * dt / h
+            )
+        })
+        .unwrap_or_default();
+    causes.push(format!(
+        "the flow step is too long for the gas speeds: with time.dt_flow = {dt:?} s the gas Courant number reached {reached:.3} before the failure{fastest}; the explicit gas convection needs it below about 1: try time.dt_flow <= {:.3e} s{}",
+        dt * 0.5 / reached.max(0.5),
+        inflows
+            .first()
+            .map(|_| ", or lower the inflow or jet speeds")
+            .unwrap_or("")
+    ));
+    let min_eps = g
+        .gas
+        .gas_fraction
+        .iter()
+        .copied()
+        .fold(f64::INFINITY, f64::min);
+    causes.push(format!(
+        "very dense cells: the smallest gas fraction is {min_eps:.3} ({} cell updates were clamped at {} so far)",
+        g.totals.clamped_cells,
+        crate::gas::coupling::MIN_GAS_FRACTION
+    ));
+    causes.push(format!(
+        "tight solver settings: gas.mass_tolerance = {:e}, gas.max_outer_iterations = {}",
+        g.gas.config.mass_tolerance, g.gas.config.max_outer_iterations
+    ));
+    format!("likely causes: {}", causes.join("; "))
+}
+
+/// The smallest normal restitution of any pair of particle materials.
+fn smallest_restitution(s: &Scenario) -> f64 {
+    let n = s.materials.len() as u16;
+    let mut e: f64 = 1.0;
+    for a in 0..n {
+        for b in 0..n {
+            if let Some(p) = s.contacts.get(a, b) {
+                e = e.min(p.e_n);
+            }
+        }
+    }
+    e
+}
+
+/// The watchdog's report as an error message with causes and remedies.
+pub(super) fn stall_message(s: &Scenario, stall: &crate::engine::StallReport) -> String {
+    let p = stall.position;
+    let tc = s.collisions.tc;
+    let tc_now = if tc > 0.0 {
+        format!("collisions.tc = {tc:?} s is set; a longer one")
+    } else {
+        "the TC model (collisions.tc, e.g. 1e-5 s: a collision within tc of a particle's previous one is elastic; now 0)".to_string()
+    };
+    format!(
+        "simulated time stopped advancing at t = {:?} s: {} events moved the clock by {:.3e} s, less than 1e-6 of the flow step ({:?} s). Likely cause: inelastic collapse in a dense region (smallest restitution e_n = {:?}): particle {} at ({:.6}, {:.6}, {:.6}) m collided {} times in this flow step, and {} particles passed collisions.max_collisions_per_step = {}. Remedies: {tc_now}; a higher restitution (collisions.default.e_n); fewer particles in the dense region. The hard-sphere event loop cannot pass such a cluster; a hybrid model that treats dense regions with soft spheres is planned",
+        stall.time,
+        stall.events,
+        stall.clock_advance,
+        stall.flow_step,
+        smallest_restitution(s),
+        stall.id,
+        p.x,
+        p.y,
+        p.z,
+        stall.collisions,
+        stall.beyond_guard,
+        s.collisions.max_collisions_per_step
+    )
+}
+
+/// A particle that is not finite or outside the domain, as an error
+/// message with the likely causes and their values.
+pub(super) fn bad_particle_message<Q: EventQueue>(
+    s: &Scenario,
+    engine: &Engine<Q>,
+    gas: Option<&GasRun>,
+    bad: &BadParticle,
+) -> String {
+    const AXES: [&str; 3] = ["x", "y", "z"];
+    let what = match bad.outside_axis {
+        None => "has a non-finite position or velocity".to_string(),
+        Some(a) => format!(
+            "left the domain along {} ([{:?}, {:?}] m)",
+            AXES[a], s.domain.lo[a], s.domain.hi[a]
+        ),
+    };
+    particle_failure(s, engine, gas, bad, &what)
+}
+
+/// The particle that moves the most of its own diameters in a flow step of
+/// `dt`, when that is more than the event clock resolves
+/// ([`crate::scenario::limits::CLOCK_RESOLUTION_DIAMETERS`]), with the
+/// number; checked after the kicks of a flow step, before its events.
+pub(super) fn too_fast<Q: EventQueue>(engine: &Engine<Q>, dt: f64) -> Option<(BadParticle, f64)> {
+    let limit = crate::scenario::limits::CLOCK_RESOLUTION_DIAMETERS;
+    let mut worst: Option<(BadParticle, f64)> = None;
+    for p in engine.particles() {
+        let k = p.vel.length() * dt / (2.0 * p.radius);
+        // NaN counts as too fast (and as faster than any number).
+        let beyond = k.is_nan() || k > limit;
+        if beyond && worst.as_ref().is_none_or(|w| k.is_nan() || k > w.1) {
+            let bad = BadParticle {
+                id: p.id,
+                position: p.pos,
+                velocity: p.vel,
+                omega: p.omega,
+                radius: p.radius,
+                outside_axis: None,
+            };
+            worst = Some((bad, k));
+        }
+    }
+    worst
+}
+
+/// A particle in trouble (`what`), as an error message with the likely
+/// causes and their values.
+pub(super) fn particle_failure<Q: EventQueue>(
+    s: &Scenario,
+    engine: &Engine<Q>,
+    gas: Option<&GasRun>,
+    bad: &BadParticle,
+    what: &str,
+) -> String {
+    let dt = s.time.dt_flow;
+    let mut causes = Vec::new();
+    // The fastest finite particle against the event clock's resolution.
+    let (mut fastest, mut d_min) = (0.0f64, f64::INFINITY);
+    for p in engine.particles() {
+        if p.vel.is_finite() {
+            fastest = fastest.max(p.vel.length());
+        }
+        d_min = d_min.min(2.0 * p.radius);
+    }
+    let resolved = crate::scenario::limits::resolved_speed(d_min, dt);
+    causes.push(format!(
+        "speeds: the fastest particle moves at {fastest:.3e} m/s, {:.3e} of the smallest diameters per flow step (time.dt_flow = {dt:?} s){}",
+        fastest * dt / d_min,
+        if fastest > resolved {
+            format!(", more than the event clock resolves ({resolved:.3e} m/s)")
+        } else {
+            String::new()
+        }
+    ));
+    let g = s.domain.gravity.length();
+    if g > 0.0 {
+        causes.push(format!(
+            "gravity: |domain.gravity| = {g:.3e} m/s² adds {:.3e} m/s per flow step",
+            g * dt
+        ));
+    }
+    if let Some(gas) = gas {
+        let mu = gas.gas.config.viscosity;
+        let tau = engine
+            .particles()
+            .map(|p| p.mass / (3.0 * std::f64::consts::PI * mu * 2.0 * p.radius))
+            .fold(f64::INFINITY, f64::min);
+        causes.push(format!(
+            "gas drag: the shortest particle relaxation time is {tau:.3e} s (Stokes) against time.dt_flow = {dt:?} s{}",
+            if tau < dt {
+                " (shorter: the drag kick over a flow step can overshoot)"
+            } else {
+                ""
+            }
+        ));
+        causes.push(format!(
+            "gas: the largest Courant number so far is {:.3}",
+            gas.totals.max_courant
+        ));
+    }
+    format!(
+        "particle {} {what} at t = {:?} s: position ({:e}, {:e}, {:e}) m, velocity ({:e}, {:e}, {:e}) m/s, radius {:e} m. Likely causes, with this run's values: {}. If none stands out, this is an engine fault: please report it with the scenario",
+        bad.id,
+        engine.time(),
+        bad.position.x,
+        bad.position.y,
+        bad.position.z,
+        bad.velocity.x,
+        bad.velocity.y,
+        bad.velocity.z,
+        bad.radius,
+        causes.join("; ")
+    )
+}

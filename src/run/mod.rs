@@ -1,0 +1,482 @@
+//! `edpm run`: a scenario from its initial state to `t_end`, in flow steps.
+//!
+//! Each flow step (Hoomans scheme): insert particles at the inlet
+//! ([`feeder`]), apply the velocity kicks of the external forces (first
+//! order: a full kick before the flight; second order: half kicks before
+//! and after; gas runs: the drag, pressure-gradient and gravity kicks of
+//! the gas step), process every collision in straight-line flight to the
+//! end of the step, then synchronise all particles. Sanity checks after
+//! each stage ([`diagnose`]) stop a run that goes wrong, with the likely
+//! causes. Everything written goes through the [`recorders`].
+//!
+//! - [`build`]: the engine from the scenario.
+//! - `simulate` and `FlowLoop`: the flow-step loop.
+
+pub mod build;
+mod diagnose;
+mod feeder;
+pub mod recorders;
+
+use std::io::IsTerminal;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::Context;
+use glam::DVec3;
+
+pub use build::{auto_neighbour_search, build_engine, engine_domain, material_table};
+use feeder::InletFeeder;
+use recorders::{Recorder, RunEnd, StepEnd};
+
+use crate::engine::{CollapseReport, Counters, Engine, NeighbourSearch};
+use crate::gas::flow::{GasRun, GasTotals};
+use crate::output::write_atomic;
+use crate::queue::{CalendarQueue, EventQueue, IndexedHeap, QueueKind, ReferenceQueue};
+use crate::scenario::{Scenario, Splitting};
+
+/// Entry point of `edpm run`.
+pub fn run_cli(
+    scenario_path: &Path,
+    out: Option<&Path>,
+    t_end: Option<f64>,
+    overrides: &[String],
+    opts: &RunOptions,
+) -> anyhow::Result<()> {
+    let mut overrides = overrides.to_vec();
+    if let Some(t) = t_end {
+        if !(t.is_finite() && t > 0.0) {
+            anyhow::bail!("--t-end: must be > 0 s and finite, got {t}");
+        }
+        overrides.push(format!("time.t_end={t:e}"));
+    }
+    let scenario = Scenario::from_file_with_overrides(scenario_path, &overrides)?;
+    for w in &scenario.warnings {
+        eprintln!("edpm: warning: {}: {w}", scenario.name);
+    }
+    let out_dir = match out {
+        Some(dir) => dir.to_path_buf(),
+        None => {
+            let stem = scenario_path
+                .file_stem()
+                .map_or("run".into(), |s| s.to_string_lossy().into_owned());
+            PathBuf::from("out").join(stem)
+        }
+    };
+    let opts = RunOptions {
+        progress: opts.progress && std::io::stderr().is_terminal(),
+        ..opts.clone()
+    };
+    let summary = run_scenario_with(&scenario, &out_dir, &opts)?;
+    eprintln!(
+        "edpm: {} particles, {} pair and {} wall collisions in {:.2} s CPU; results in {}",
+        summary.particles_final,
+        summary.counters.pair_collisions,
+        summary.counters.wall_collisions,
+        summary.cpu_seconds,
+        out_dir.display()
+    );
+    let c = &summary.counters;
+    if c.tc_collisions + c.guard_collisions > 0 {
+        eprintln!(
+            "edpm: made elastic: {} collisions by the TC model, {} by the collapse guard \
+             ({:.2} % of the nominal dissipation did not happen; see summary.json)",
+            c.tc_collisions,
+            c.guard_collisions,
+            100.0 * summary.elastic_overrides.undissipated_fraction
+        );
+    }
+    Ok(())
+}
+
+/// What a run reports in `summary.json`.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Summary {
+    pub scenario: String,
+    pub overrides: Vec<String>,
+    pub seed: u64,
+    pub t_end: f64,
+    pub dt_flow: f64,
+    pub flow_steps: u64,
+    pub queue: QueueKind,
+    pub neighbours: NeighbourSearch,
+    /// Neighbour-shell thickness used (m).
+    pub skin: f64,
+    pub rotation_tracked: bool,
+    pub particles_initial: usize,
+    pub particles_final: usize,
+    pub counters: Counters,
+    pub kinetic_energy_translational: f64,
+    pub kinetic_energy_rotational: f64,
+    pub cpu_seconds: f64,
+    pub wall_seconds: f64,
+    pub events_per_cpu_second: f64,
+    /// Particles that could not be inserted at the inlet for lack of room
+    /// (waiting at the end of the run).
+    pub inlet_backlog: usize,
+    /// Particles that exceeded `max_collisions_per_step` (first 1000).
+    pub collapse_reports: Vec<CollapseReport>,
+    pub collapse_reports_total: usize,
+    /// What the TC model and the collapse guard changed (the totals are in
+    /// `counters`: `tc_collisions`, `tc_undissipated`, `guard_collisions`,
+    /// `guard_undissipated`).
+    pub elastic_overrides: ElasticOverrides,
+    /// Size of the event log (bytes), when one was written.
+    pub log_bytes: Option<u64>,
+    /// Gas-phase totals of a gas-coupled run.
+    pub gas: Option<GasTotals>,
+    /// Whether the run reached `t_end`; a failed run writes the summary and
+    /// time series up to the failure, and no final state.
+    pub status: RunStatus,
+    /// Why a failed run stopped.
+    pub error: Option<String>,
+    /// Validation warnings of the scenario.
+    pub warnings: Vec<String>,
+}
+
+/// How a run ended.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum RunStatus {
+    Completed,
+    Failed,
+}
+
+/// Settings and shares of the collisions that the TC model and the
+/// collapse guard made elastic (`e_n = 1` instead of the nominal value).
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct ElasticOverrides {
+    /// TC duration (s); 0: off.
+    pub tc: f64,
+    /// The guard makes a particle's collisions elastic once it has had this
+    /// many in the current flow step.
+    pub max_collisions_per_step: u64,
+    /// The guard's trigger as a collision rate, `max_collisions_per_step /
+    /// dt_flow` per particle (1/s): it counts per flow step, so a smaller
+    /// `dt_flow` raises the rate needed to trigger it and changes where it
+    /// acts.
+    pub guard_rate_threshold: f64,
+    /// Pair and wall collisions made elastic by TC and by the guard, as
+    /// fractions of all pair and wall collisions.
+    pub tc_fraction: f64,
+    pub guard_fraction: f64,
+    /// Energy not dissipated by them over what the nominal parameters would
+    /// have dissipated in all collisions, `U / (D + U)` with `U` the
+    /// undissipated and `D` the dissipated energy (pairs and walls).
+    pub undissipated_fraction: f64,
+}
+
+impl ElasticOverrides {
+    fn new(s: &Scenario, c: &Counters) -> Self {
+        let collisions = (c.pair_collisions + c.wall_collisions) as f64;
+        let undissipated = c.tc_undissipated + c.guard_undissipated;
+        let dissipated = c.dissipated_pair + c.dissipated_wall;
+        let share = |x: f64, total: f64| if total > 0.0 { x / total } else { 0.0 };
+        ElasticOverrides {
+            tc: s.collisions.tc,
+            max_collisions_per_step: s.collisions.max_collisions_per_step,
+            guard_rate_threshold: s.collisions.max_collisions_per_step as f64 / s.time.dt_flow,
+            tc_fraction: share(c.tc_collisions as f64, collisions),
+            guard_fraction: share(c.guard_collisions as f64, collisions),
+            undissipated_fraction: share(undissipated, dissipated + undissipated),
+        }
+    }
+}
+
+/// Runs `s` and writes its results into `out_dir`.
+pub fn run_scenario(s: &Scenario, out_dir: &Path, progress: bool) -> anyhow::Result<Summary> {
+    run_scenario_with(
+        s,
+        out_dir,
+        &RunOptions {
+            progress,
+            ..Default::default()
+        },
+    )
+}
+
+/// How `edpm run` runs beyond what the scenario says.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct RunOptions {
+    /// Show a progress bar.
+    pub progress: bool,
+    /// Write a binary event log here.
+    pub log: Option<PathBuf>,
+    /// Full-state checkpoints in the log every this many flow steps
+    /// (default: 10 per run); a final one is always written.
+    pub log_checkpoint_steps: Option<u64>,
+}
+
+/// Runs `s` with `opts` and writes its results into `out_dir`.
+pub fn run_scenario_with(
+    s: &Scenario,
+    out_dir: &Path,
+    opts: &RunOptions,
+) -> anyhow::Result<Summary> {
+    if opts.log_checkpoint_steps == Some(0) {
+        anyhow::bail!(
+            "--log-checkpoint-steps: must be >= 1 (a checkpoint every STEPS flow steps), got 0"
+        );
+    }
+    match s.engine.queue {
+        QueueKind::IndexedHeap => simulate::<IndexedHeap>(s, out_dir, opts),
+        QueueKind::Calendar => simulate::<CalendarQueue>(s, out_dir, opts),
+        QueueKind::Reference => simulate::<ReferenceQueue>(s, out_dir, opts),
+    }
+}
+
+/// Number of flow steps to reach `t_end` (the last one may be shorter).
+pub fn flow_steps(t_end: f64, dt_flow: f64) -> u64 {
+    (t_end / dt_flow - 1e-9).ceil().max(1.0) as u64
+}
+
+/// The length of every flow step of a run: `steps` steps of `dt_flow`, the
+/// last one shortened so that it ends exactly at `t_end`.
+#[derive(Clone, Copy, Debug)]
+struct FlowSteps {
+    steps: u64,
+    dt_flow: f64,
+    last_dt: f64,
+}
+
+impl FlowSteps {
+    fn new(t_end: f64, dt_flow: f64) -> Self {
+        let steps = flow_steps(t_end, dt_flow);
+        // The last step ends exactly at t_end: (0, dt_flow (1 + 1e-9)]. When
+        // t_end is a whole number of steps (to within the 1e-9 of the step
+        // count), the last step is a full one, so that a run and a longer run
+        // of the same scenario agree bit for bit up to its end.
+        let remainder = t_end - (steps - 1) as f64 * dt_flow;
+        let last_dt = if (remainder - dt_flow).abs() <= 1e-9 * dt_flow {
+            dt_flow
+        } else {
+            remainder
+        };
+        FlowSteps {
+            steps,
+            dt_flow,
+            last_dt,
+        }
+    }
+
+    fn dt(&self, step: u64) -> f64 {
+        if step + 1 == self.steps {
+            self.last_dt
+        } else {
+            self.dt_flow
+        }
+    }
+}
+
+/// What drives the particles of a run between its events: the engine, the
+/// gas (if any), the inlet feeder, and the recorders that watch them.
+struct FlowLoop<'a, Q: EventQueue> {
+    s: &'a Scenario,
+    engine: Engine<Q>,
+    gas: Option<GasRun>,
+    feeder: Option<InletFeeder>,
+    recorders: Vec<Box<dyn Recorder<Q>>>,
+    /// Anything that acts at flow steps: forces (kicks) or inlet feeding.
+    forces: bool,
+}
+
+impl<Q: EventQueue> FlowLoop<'_, Q> {
+    /// A uniform kick `dv` on every particle, announced to the recorders.
+    fn kick_all(&mut self, dv: DVec3) -> anyhow::Result<()> {
+        for r in self.recorders.iter_mut() {
+            r.before_kick(&mut self.engine, dv)?;
+        }
+        self.engine.kick_all(dv);
+        Ok(())
+    }
+
+    /// Flow step `step` (0-based) of `dt` (s); `last`: the run's last.
+    fn step(&mut self, step: u64, dt: f64, last: bool) -> anyhow::Result<()> {
+        let s = self.s;
+        let gravity = s.domain.gravity;
+        if let Some(f) = self.feeder.as_mut() {
+            f.feed(s, &mut self.engine, dt);
+        }
+        let kick = match s.time.splitting {
+            Splitting::FirstOrder => 1.0,
+            Splitting::SecondOrder => 0.5,
+        };
+        if let Some(g) = self.gas.as_mut() {
+            // Drag, pressure gradient and gravity as one first-order kick.
+            if let Err(e) = g.step(&mut self.engine, dt) {
+                anyhow::bail!(
+                    "{}: gas phase: {e}; {}",
+                    s.name,
+                    diagnose::gas_failure_causes(g, dt)
+                );
+            }
+        } else if gravity != DVec3::ZERO {
+            self.kick_all(gravity * (kick * dt))?;
+        }
+        if self.forces
+            && let Some((bad, k)) = diagnose::too_fast(&self.engine, dt)
+        {
+            let what = format!(
+                "moves {k:.3e} of its diameters in a flow step of {dt:?} s after the kicks, more than the {:.2e} the event clock resolves",
+                crate::scenario::limits::CLOCK_RESOLUTION_DIAMETERS
+            );
+            anyhow::bail!(
+                "{}: {}",
+                s.name,
+                diagnose::particle_failure(s, &self.engine, self.gas.as_ref(), &bad, &what)
+            );
+        }
+        self.engine.advance(dt);
+        if let Some(stall) = self.engine.stall() {
+            anyhow::bail!("{}: {}", s.name, diagnose::stall_message(s, stall));
+        }
+        for r in self.recorders.iter_mut() {
+            r.after_events(&mut self.engine, dt)?;
+        }
+        self.engine.records.clear();
+        let end = StepEnd {
+            step: step + 1,
+            time: self.engine.time(),
+            dt,
+            last,
+        };
+        // Every recorder is asked (no short cut): none keeps state from it.
+        let asked = self
+            .recorders
+            .iter()
+            .fold(false, |any, r| r.needs_sync(&end) | any);
+        // Without forces nothing changes at a flow step: synchronise only
+        // where results are taken (re-predicting everyone costs ~N events).
+        if self.forces || last || asked {
+            for r in self.recorders.iter_mut() {
+                r.before_sync(&mut self.engine)?;
+            }
+            self.engine.end_flow_step();
+            if let Some(bad) = self.engine.find_bad_particle() {
+                anyhow::bail!(
+                    "{}: {}",
+                    s.name,
+                    diagnose::bad_particle_message(s, &self.engine, self.gas.as_ref(), &bad)
+                );
+            }
+        }
+        if s.time.splitting == Splitting::SecondOrder
+            && gravity != DVec3::ZERO
+            && self.gas.is_none()
+        {
+            self.kick_all(gravity * (0.5 * dt))?;
+        }
+        for r in self.recorders.iter_mut() {
+            r.end_step(&mut self.engine, self.gas.as_mut(), &end)?;
+        }
+        Ok(())
+    }
+}
+
+/// Runs `s` with the queue `Q`: builds the engine and the gas, drives the
+/// flow steps, lets the recorders write, and writes `summary.json` (also
+/// for a failed run).
+fn simulate<Q: EventQueue>(
+    s: &Scenario,
+    out_dir: &Path,
+    opts: &RunOptions,
+) -> anyhow::Result<Summary> {
+    let wall_start = Instant::now();
+    let cpu_start = crate::timing::cpu_time();
+    let mut engine = build_engine::<Q>(s)?;
+    let mut gas = GasRun::new(s);
+    if let Some(g) = gas.as_mut() {
+        if opts.log.is_some() {
+            anyhow::bail!(
+                "{}: event logs (--log) of gas-coupled runs are not supported yet: the per-particle drag kicks are not logged",
+                s.name
+            );
+        }
+        g.initialise(&engine);
+    }
+    std::fs::create_dir_all(out_dir).with_context(|| format!("creating {}", out_dir.display()))?;
+    write_atomic(&out_dir.join("scenario.toml"), s.effective_toml.as_bytes())?;
+    let resolved = crate::scenario::resolved_toml(s);
+    write_atomic(&out_dir.join("resolved.toml"), resolved.as_bytes())?;
+    let plan = FlowSteps::new(s.time.t_end, s.time.dt_flow);
+    let mut recorders =
+        recorders::for_run(s, out_dir, opts, &mut engine, gas.as_ref(), plan.steps)?;
+    for r in recorders.iter_mut() {
+        r.start(&mut engine, gas.as_mut())?;
+    }
+    let particles_initial = engine.len();
+    let feeder = InletFeeder::new(s);
+    let forces = s.domain.gravity != DVec3::ZERO || feeder.is_some() || gas.is_some();
+    let mut run = FlowLoop {
+        s,
+        engine,
+        gas,
+        feeder,
+        recorders,
+        forces,
+    };
+    let outcome =
+        (0..plan.steps).try_for_each(|step| run.step(step, plan.dt(step), step + 1 == plan.steps));
+    let mut end = RunEnd {
+        completed: outcome.is_ok(),
+        log_bytes: None,
+    };
+    for r in run.recorders.iter_mut() {
+        r.finish(&mut run.engine, &mut end)?;
+    }
+    let cpu_seconds = crate::timing::cpu_time() - cpu_start;
+    let engine = &run.engine;
+    let (ke_t, ke_r) = engine.kinetic_energy();
+    let events = engine.counters.pair_collisions + engine.counters.wall_collisions;
+    let summary = Summary {
+        scenario: s.name.clone(),
+        overrides: s.overrides.clone(),
+        seed: s.seed,
+        t_end: engine.time(),
+        dt_flow: plan.dt_flow,
+        flow_steps: plan.steps,
+        queue: s.engine.queue,
+        neighbours: engine.neighbour_search(),
+        skin: engine.skin(),
+        rotation_tracked: engine.is_rough(),
+        particles_initial,
+        particles_final: engine.len(),
+        counters: engine.counters,
+        kinetic_energy_translational: ke_t,
+        kinetic_energy_rotational: ke_r,
+        cpu_seconds,
+        wall_seconds: wall_start.elapsed().as_secs_f64(),
+        events_per_cpu_second: events as f64 / cpu_seconds.max(1e-9),
+        inlet_backlog: run.feeder.as_ref().map_or(0, |f| f.backlog(s))
+            + engine.pending_reinsertions(),
+        collapse_reports: engine.collapse_reports.iter().take(1000).copied().collect(),
+        collapse_reports_total: engine.collapse_reports.len(),
+        elastic_overrides: ElasticOverrides::new(s, &engine.counters),
+        log_bytes: end.log_bytes,
+        gas: run.gas.as_ref().map(|g| g.totals),
+        status: if outcome.is_ok() {
+            RunStatus::Completed
+        } else {
+            RunStatus::Failed
+        },
+        error: outcome.as_ref().err().map(|e| format!("{e:#}")),
+        warnings: s
+            .warnings
+            .iter()
+            .cloned()
+            .chain(run.feeder.as_ref().and_then(|f| f.shortfall(engine.time())))
+            .collect(),
+    };
+    for w in summary.warnings.iter().skip(s.warnings.len()) {
+        eprintln!("edpm: warning: {w}");
+    }
+    let json = serde_json::to_string_pretty(&summary).context("encoding summary")?;
+    write_atomic(&out_dir.join("summary.json"), json.as_bytes())?;
+    match outcome {
+        Ok(()) => Ok(summary),
+        Err(e) => Err(anyhow::anyhow!(
+            "{e:#}; the run stopped at t = {} s: results so far are in {} (summary.json has \"status\": \"failed\", timeseries.csv the samples up to then)",
+            engine.time(),
+            out_dir.display()
+        )),
+    }
+}

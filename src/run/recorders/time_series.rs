@@ -1,0 +1,177 @@
+//! The time series: `timeseries.csv` (particles, every
+//! `output.sample_interval`) and, in gas runs, `gas_timeseries.csv` (rows
+//! from [`GasRun::sample_row`]).
+
+use std::path::{Path, PathBuf};
+
+use glam::DVec3;
+
+use super::{Recorder, RunEnd, StepEnd, due, next_multiple};
+use crate::engine::{Counters, Engine};
+use crate::gas::flow::{GAS_SERIES_HEADER, GasRun};
+use crate::output::CsvTable;
+use crate::queue::EventQueue;
+
+const TIME_SERIES_HEADER: [&str; 17] = [
+    "time_s",
+    "particles",
+    "pair_collisions",
+    "wall_collisions",
+    "ke_translational_J",
+    "ke_rotational_J",
+    "momentum_x_kg_m_s",
+    "momentum_y_kg_m_s",
+    "momentum_z_kg_m_s",
+    "granular_temperature_m2_s2",
+    "pressure_kinetic_Pa",
+    "pressure_collisional_Pa",
+    "dissipated_J",
+    "collapse_reports",
+    "centre_of_mass_x_m",
+    "centre_of_mass_y_m",
+    "centre_of_mass_z_m",
+];
+
+/// The time series of a run in progress.
+pub struct TimeSeries {
+    out_dir: PathBuf,
+    interval: f64,
+    next: f64,
+    series: CsvTable,
+    gas_series: Option<CsvTable>,
+    /// Counters and time at the previous row.
+    last: Counters,
+    last_time: f64,
+    /// Collapse reports already counted in a row.
+    collapse_seen: usize,
+}
+
+impl TimeSeries {
+    pub fn new(out_dir: &Path, interval: f64, gas: bool) -> Self {
+        TimeSeries {
+            out_dir: out_dir.to_path_buf(),
+            interval,
+            next: interval,
+            series: CsvTable::new(&TIME_SERIES_HEADER),
+            gas_series: gas.then(|| CsvTable::new(&GAS_SERIES_HEADER)),
+            last: Counters::default(),
+            last_time: 0.0,
+            collapse_seen: 0,
+        }
+    }
+}
+
+impl<Q: EventQueue> Recorder<Q> for TimeSeries {
+    fn start(&mut self, engine: &mut Engine<Q>, gas: Option<&mut GasRun>) -> anyhow::Result<()> {
+        if let (Some(series), Some(g)) = (self.gas_series.as_mut(), gas) {
+            series.row(&g.sample_row());
+        }
+        self.last = engine.counters;
+        sample_interval_row(engine, &mut self.series, &self.last, 0.0, 0);
+        Ok(())
+    }
+
+    fn needs_sync(&self, end: &StepEnd) -> bool {
+        due(end, self.next)
+    }
+
+    fn end_step(
+        &mut self,
+        engine: &mut Engine<Q>,
+        gas: Option<&mut GasRun>,
+        end: &StepEnd,
+    ) -> anyhow::Result<()> {
+        if !due(end, self.next) {
+            return Ok(());
+        }
+        let t = end.time;
+        let new_reports = engine.collapse_reports.len() - self.collapse_seen;
+        self.collapse_seen = engine.collapse_reports.len();
+        sample_interval_row(
+            engine,
+            &mut self.series,
+            &self.last,
+            t - self.last_time,
+            new_reports,
+        );
+        if let (Some(series), Some(g)) = (self.gas_series.as_mut(), gas) {
+            series.row(&g.sample_row());
+        }
+        self.last = engine.counters;
+        self.last_time = t;
+        self.next = next_multiple(t, self.interval);
+        Ok(())
+    }
+
+    fn finish(&mut self, _engine: &mut Engine<Q>, _end: &mut RunEnd) -> anyhow::Result<()> {
+        self.series.write(&self.out_dir.join("timeseries.csv"))?;
+        if let Some(series) = &self.gas_series {
+            series.write(&self.out_dir.join("gas_timeseries.csv"))?;
+        }
+        Ok(())
+    }
+}
+
+/// One time-series row. Collision counts, dissipation and the collisional
+/// pressure refer to the interval since the previous row. Pressures:
+/// kinetic `Σ m C² / (d V)` with `C` the velocity relative to the mean,
+/// collisional `Σ r_ab · J / (d V Δt)` (the collision virial), with `d`
+/// the number of moving dimensions and `V` the domain volume.
+fn sample_interval_row<Q: EventQueue>(
+    engine: &Engine<Q>,
+    series: &mut CsvTable,
+    last: &Counters,
+    interval: f64,
+    reports: usize,
+) {
+    let c = &engine.counters;
+    let (ke_t, ke_r) = engine.kinetic_energy();
+    let momentum = engine.momentum();
+    let d = engine.domain().dimensions() as f64;
+    let volume = engine.domain().volume();
+    let mass: f64 = engine.particles().map(|p| p.mass).sum();
+    let mean = if mass > 0.0 {
+        momentum / mass
+    } else {
+        DVec3::ZERO
+    };
+    let fluct: f64 = engine
+        .particles()
+        .map(|p| p.mass * (p.vel - mean).length_squared())
+        .sum();
+    let n = engine.len().max(1) as f64;
+    let centre = if mass > 0.0 {
+        engine.particles().map(|p| p.mass * p.pos).sum::<DVec3>() / mass
+    } else {
+        DVec3::ZERO
+    };
+    let temperature = engine
+        .particles()
+        .map(|p| (p.vel - mean).length_squared())
+        .sum::<f64>()
+        / (d * n);
+    let p_coll = if interval > 0.0 {
+        (c.virial - last.virial) / (d * volume * interval)
+    } else {
+        0.0
+    };
+    series.row(&[
+        engine.time(),
+        engine.len() as f64,
+        (c.pair_collisions - last.pair_collisions) as f64,
+        (c.wall_collisions - last.wall_collisions) as f64,
+        ke_t,
+        ke_r,
+        momentum.x,
+        momentum.y,
+        momentum.z,
+        temperature,
+        fluct / (d * volume),
+        p_coll,
+        (c.dissipated_pair + c.dissipated_wall) - (last.dissipated_pair + last.dissipated_wall),
+        reports as f64,
+        centre.x,
+        centre.y,
+        centre.z,
+    ]);
+}
