@@ -11,8 +11,7 @@ use super::config::GasConfig;
 use super::coupling::Coupling;
 use super::solver::{GasError, GasPhase};
 use crate::domain::grid::GridGeometry;
-use crate::engine::Engine;
-use crate::queue::EventQueue;
+use crate::engine::ParticleDynamics;
 
 /// What a gas run is built from: the resolved `[gas]` configuration, the
 /// grid over the box and gravity (m/s²).
@@ -109,7 +108,7 @@ impl GasRun {
     }
 
     /// Gas fraction from the initial particles, before the first step.
-    pub fn initialise<Q: EventQueue>(&mut self, engine: &Engine<Q>) {
+    pub fn initialise(&mut self, engine: &impl ParticleDynamics) {
         if self.gas.config.two_way {
             let eps = self
                 .coupling
@@ -122,8 +121,8 @@ impl GasRun {
     }
 
     /// Gas step and particle kicks for a flow step of `dt`; the engine must
-    /// be synchronised (right after [`Engine::end_flow_step`]).
-    pub fn step<Q: EventQueue>(&mut self, engine: &mut Engine<Q>, dt: f64) -> Result<(), GasError> {
+    /// be synchronised (right after [`ParticleDynamics::end_flow_step`]).
+    pub fn step(&mut self, engine: &mut impl ParticleDynamics, dt: f64) -> Result<(), GasError> {
         let start = crate::timing::cpu_time();
         let slots = (0..engine.slots()).map(|i| engine.particle(i));
         self.coupling.prepare(&mut self.gas, slots.clone(), dt);

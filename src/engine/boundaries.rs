@@ -1,0 +1,203 @@
+//! The box's boundaries seen from the particles: the inlet zone
+//! (insertion at free random spots), the outlet (removal or reinsertion)
+//! and the sanity check that every particle is finite and inside.
+
+use glam::DVec3;
+
+use super::{BadParticle, Engine, Record};
+use crate::domain::{AxisBoundary, Face, OutletMode};
+use crate::neighbours;
+use crate::particles::NewParticle;
+use crate::queue::EventQueue;
+
+/// Attempts to find a free spot when inserting a particle.
+pub(super) const INSERT_ATTEMPTS: usize = 200;
+
+impl<Q: EventQueue> Engine<Q> {
+    /// The first particle (in slot order) whose position, velocity or
+    /// angular velocity is not finite, or whose centre lies outside the
+    /// domain at the current time: beyond a wall by more than 1e-6 of its
+    /// radius (its surface may touch the wall, not its centre cross it),
+    /// past the outlet face by as much, or off the mid-plane of a planar
+    /// domain. `None` when every particle is sane.
+    pub fn find_bad_particle(&self) -> Option<BadParticle> {
+        for i in 0..self.kin.len() {
+            if !self.active[i] {
+                continue;
+            }
+            let k = &self.kin[i];
+            let pos = k.position_at(self.now);
+            let bad = |outside_axis| BadParticle {
+                id: self.id[i],
+                position: pos,
+                velocity: k.vel,
+                omega: self.omega[i],
+                radius: k.radius,
+                outside_axis,
+            };
+            if !(pos.is_finite() && k.vel.is_finite() && self.omega[i].is_finite()) {
+                return Some(bad(None));
+            }
+            let tol = 1e-6 * k.radius;
+            for axis in 0..3 {
+                let (lo, hi) = (self.domain.lo[axis], self.domain.hi[axis]);
+                let x = pos[axis];
+                let inside = match self.domain.axes[axis] {
+                    AxisBoundary::Walls => {
+                        let upper = if self.domain.has_wall((2 * axis + 1) as Face) {
+                            hi - k.radius + tol
+                        } else {
+                            hi + tol
+                        };
+                        x >= lo + k.radius - tol && x <= upper
+                    }
+                    // Wrapped into the box when its list or cell is rebuilt.
+                    AxisBoundary::Periodic => true,
+                    AxisBoundary::Frozen => k.vel[axis] == 0.0 && x >= lo && x <= hi,
+                };
+                if !inside {
+                    return Some(bad(Some(axis)));
+                }
+            }
+        }
+        None
+    }
+
+    /// Takes particle i out of the simulation and returns it.
+    pub(super) fn remove(&mut self, i: usize) -> NewParticle {
+        self.sync(i);
+        self.queue.remove(i as u32);
+        for k in 0..self.lists.list(i).len() {
+            let (j, _) = neighbours::unpack(self.lists.list(i)[k]);
+            self.lists.remove_index(j as usize, i as u32);
+        }
+        self.lists.clear(i);
+        self.cells.remove(i);
+        self.active[i] = false;
+        self.counter[i] = self.counter[i].wrapping_add(1);
+        self.free_slots.push(i as u32);
+        self.counters.removed += 1;
+        if self.config.record_events {
+            self.records.push(Record::Remove {
+                time: self.time(),
+                clock: self.now,
+                id: self.id[i],
+                state: self.state(i),
+            });
+        }
+        let k = self.kin[i];
+        NewParticle {
+            pos: k.pos,
+            vel: k.vel,
+            omega: self.omega[i],
+            radius: k.radius,
+            material: self.material[i],
+        }
+    }
+
+    pub(super) fn leave_through_outlet(&mut self, i: usize) {
+        let p = self.remove(i);
+        let reinsert = matches!(self.domain.outlet, Some(o) if o.mode == OutletMode::Reinsert);
+        // Without an inlet zone a reinserting outlet can only remove.
+        if let (true, Some(inlet)) = (reinsert, self.config.inlet) {
+            let p = NewParticle {
+                vel: inlet.velocity,
+                omega: DVec3::ZERO,
+                ..p
+            };
+            if !self.insert_in_inlet(p) {
+                self.pending_reinsert.push(p);
+            }
+        }
+    }
+
+    pub(super) fn retry_pending_reinsertions(&mut self) {
+        let pending = std::mem::take(&mut self.pending_reinsert);
+        for p in pending {
+            if !self.insert_in_inlet(p) {
+                self.pending_reinsert.push(p);
+            }
+        }
+    }
+
+    /// Particles waiting for room in the inlet zone.
+    pub fn pending_reinsertions(&self) -> usize {
+        self.pending_reinsert.len()
+    }
+
+    /// Tries to place `p` (its position is ignored) at a random free spot
+    /// in the inlet zone at the current time. Returns false when no spot
+    /// was found in a bounded number of attempts.
+    pub fn insert_in_inlet(&mut self, p: NewParticle) -> bool {
+        use rand::RngExt;
+        let Some(inlet) = self.config.inlet else {
+            return false;
+        };
+        let (lo, hi) = (self.domain.lo, self.domain.hi);
+        for _ in 0..INSERT_ATTEMPTS {
+            let mut pos = DVec3::ZERO;
+            for axis in 0..3 {
+                let (mut a, mut b) = (lo[axis], hi[axis]);
+                if axis == inlet.axis {
+                    b = a + inlet.height;
+                }
+                if self.domain.axes[axis] == AxisBoundary::Frozen {
+                    pos[axis] = 0.5 * (a + b);
+                    continue;
+                }
+                if self.domain.axes[axis] == AxisBoundary::Walls {
+                    a += p.radius;
+                    if axis != inlet.axis {
+                        b -= p.radius;
+                    }
+                }
+                if b <= a {
+                    return false;
+                }
+                pos[axis] = self.rng.random_range(a..b);
+            }
+            if self.try_insert(NewParticle { pos, ..p }) {
+                return true;
+            }
+        }
+        false
+    }
+
+    /// Inserts `p` at its position at the current time if it overlaps no
+    /// particle and no wall and fits the neighbour grid; returns whether it
+    /// was inserted.
+    pub fn try_insert(&mut self, p: NewParticle) -> bool {
+        if self.check_particle(usize::MAX, &p).is_err() {
+            return false;
+        }
+        let mut overlaps = false;
+        let now = self.now;
+        self.cells.for_each_near(p.pos, |e, _| {
+            let j = e.index as usize;
+            let kj = &self.kin[j];
+            let d = p.pos - kj.position_at(now);
+            let d = d + self.image_shift[self.domain.image_code(d) as usize];
+            let sigma = p.radius + kj.radius;
+            if d.length_squared() < sigma * sigma {
+                overlaps = true;
+            }
+        });
+        if overlaps {
+            return false;
+        }
+        let slot = self.allocate_slot(&p);
+        if self.config.record_events {
+            self.records.push(Record::Insert {
+                time: self.time(),
+                clock: self.now,
+                id: self.id[slot],
+                particle: p,
+            });
+        }
+        self.enter_grid(slot);
+        if !self.needs_prediction {
+            self.predict(slot);
+        }
+        true
+    }
+}

@@ -1,0 +1,335 @@
+//! The event loop (seed 001 Eq. 44–48): one pending event per particle,
+//! predicted from the neighbour search, walls and outlet; processed in
+//! time order; flow-step ends; the stall watchdog.
+
+use glam::DVec3;
+
+use super::store::Kinematics;
+use super::{
+    CollapseReport, CollisionRecord, Engine, NO_PARTNER, NeighbourSearch, Record, StallReport,
+};
+use crate::domain::{Face, IDENTITY_IMAGE};
+use crate::geometry;
+use crate::neighbours;
+use crate::queue::EventQueue;
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum EventKind {
+    Pair,
+    Wall,
+    Outlet,
+    /// Lists mode: the particle leaves its neighbour shell.
+    ShellExit,
+    /// Cells mode: the particle crosses `face` of its cell.
+    CellCrossing,
+}
+
+/// A particle's pending event. For pairs, `partner` is a packed list entry
+/// (index and image code) and `partner_count` the partner's event counter
+/// when the prediction was made.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Scheduled {
+    pub(super) kind: EventKind,
+    pub(super) face: Face,
+    pub(super) partner: u32,
+    pub(super) partner_count: u32,
+}
+
+pub(super) const SHELL_EXIT: Scheduled = Scheduled {
+    kind: EventKind::ShellExit,
+    face: 0,
+    partner: 0,
+    partner_count: 0,
+};
+
+/// Stall watchdog: a window is `max(STALL_MIN_WINDOW, STALL_EVENTS_PER_PARTICLE
+/// × particles)` events; the flow step stalls when a window advances the
+/// clock by less than `STALL_MIN_PROGRESS` of the step. A healthy step
+/// needs at most a few windows: the collapse guard caps a particle's
+/// inelastic collisions per step at `max_collisions_per_step` (1000 by
+/// default), so a step of N particles holds of the order of 1000 N events,
+/// 10 windows; a stalled one would need 10⁶ windows or more.
+pub(super) const STALL_MIN_WINDOW: u64 = 1_000_000;
+
+pub(super) const STALL_EVENTS_PER_PARTICLE: u64 = 100;
+
+pub(super) const STALL_MIN_PROGRESS: f64 = 1e-6;
+
+impl<Q: EventQueue> Engine<Q> {
+    /// Processes every event before `self.time() + dt`, then sets the clock
+    /// to that time. Particles are not synchronised.
+    ///
+    /// A watchdog stops early when simulated time stops advancing against
+    /// events (inelastic collapse, or a contact the event loop cannot
+    /// resolve): then [`Engine::stall`] is set, the clock stays where it
+    /// stopped, and this and every later call return at once.
+    pub fn advance(&mut self, dt: f64) {
+        if self.stall.is_some() {
+            return;
+        }
+        let end = self.now + dt;
+        self.ensure_predicted();
+        let window = STALL_MIN_WINDOW.max(STALL_EVENTS_PER_PARTICLE * self.len() as u64);
+        let min_progress = if dt.is_finite() {
+            STALL_MIN_PROGRESS * dt
+        } else {
+            0.0
+        };
+        let (mut events, mut anchor) = (0u64, self.now);
+        while let Some((t, i)) = self.queue.peek_min() {
+            if t >= end {
+                break;
+            }
+            self.now = t;
+            self.process(i as usize);
+            events += 1;
+            if events == window {
+                if self.now - anchor < min_progress {
+                    self.stall = Some(self.stall_report(events, self.now - anchor, dt));
+                    return;
+                }
+                (events, anchor) = (0, self.now);
+            }
+        }
+        self.now = end;
+    }
+
+    /// Why the last [`Engine::advance`] stopped early, if it did.
+    pub fn stall(&self) -> Option<&StallReport> {
+        self.stall.as_ref()
+    }
+
+    pub(super) fn stall_report(
+        &self,
+        events: u64,
+        clock_advance: f64,
+        flow_step: f64,
+    ) -> StallReport {
+        let worst = (0..self.kin.len())
+            .filter(|&i| self.active[i])
+            .max_by_key(|&i| (self.step_collisions[i], std::cmp::Reverse(i)));
+        let (id, position, collisions) = match worst {
+            Some(i) => (
+                self.id[i],
+                self.domain.wrap(self.kin[i].position_at(self.now)),
+                self.step_collisions[i],
+            ),
+            None => (0, DVec3::ZERO, 0),
+        };
+        StallReport {
+            time: self.time(),
+            events,
+            clock_advance,
+            flow_step,
+            id,
+            position,
+            collisions,
+            beyond_guard: self
+                .step_collisions
+                .iter()
+                .zip(&self.active)
+                .filter(|&(&c, &a)| a && c >= self.config.max_collisions_per_step)
+                .count(),
+        }
+    }
+
+    /// Processes queue entries until one collision happens before
+    /// `self.time() + horizon`; returns it. Internal events (list expiry,
+    /// stale predictions) are processed silently. Without a collision the
+    /// clock ends at `self.time() + horizon`, as after [`Engine::advance`].
+    /// Recording must be enabled.
+    pub fn next_collision(&mut self, horizon: f64) -> Option<CollisionRecord> {
+        let end = self.now + horizon;
+        self.ensure_predicted();
+        while let Some((t, i)) = self.queue.peek_min() {
+            if t >= end {
+                break;
+            }
+            self.now = t;
+            let before = self.records.len();
+            self.process(i as usize);
+            let collision = self.records[before..].iter().find_map(|r| match r {
+                Record::Collision(c) => Some(*c),
+                _ => None,
+            });
+            if collision.is_some() {
+                return collision;
+            }
+        }
+        self.now = end;
+        None
+    }
+
+    pub(super) fn ensure_predicted(&mut self) {
+        if self.needs_prediction {
+            self.predict_all();
+        }
+    }
+
+    /// Ends a flow step: synchronises all particles, checks the collapse
+    /// guard and shifts the time origin to now. All events must then be
+    /// re-predicted, which happens lazily before the next event.
+    pub fn end_flow_step(&mut self) {
+        self.synchronise();
+        let time = self.time();
+        for i in 0..self.kin.len() {
+            if self.active[i] && self.step_collisions[i] > self.config.max_collisions_per_step {
+                self.collapse_reports.push(CollapseReport {
+                    time,
+                    id: self.id[i],
+                    position: self.domain.wrap(self.kin[i].pos),
+                    collisions: self.step_collisions[i],
+                });
+            }
+            self.step_collisions[i] = 0;
+        }
+        let shift = self.now;
+        let sum = self.time_origin + shift;
+        self.time_origin_error += if self.time_origin.abs() >= shift.abs() {
+            (self.time_origin - sum) + shift
+        } else {
+            (shift - sum) + self.time_origin
+        };
+        self.time_origin = sum;
+        self.now = 0.0;
+        for k in &mut self.kin {
+            k.time = 0.0;
+        }
+        for t in &mut self.last_collision {
+            *t -= shift;
+        }
+        self.needs_prediction = true;
+        self.retry_pending_reinsertions();
+    }
+
+    /// Re-predicts every particle from scratch.
+    pub(super) fn predict_all(&mut self) {
+        self.queue.clear();
+        for i in 0..self.kin.len() {
+            if self.active[i] {
+                self.predict(i);
+            }
+        }
+        self.needs_prediction = false;
+    }
+
+    /// Finds particle i's earliest event (Eq. 46) and queues it. The
+    /// particle's stored state is not changed: its position now is
+    /// extrapolated, so only collisions, wraps and flow-step ends ever
+    /// rewrite positions (which keeps event logs replayable bit for bit).
+    pub(super) fn predict(&mut self, i: usize) {
+        let mut ki = self.kin[i];
+        ki.pos = ki.position_at(self.now);
+        let (mut best, mut event) = match self.config.neighbours {
+            NeighbourSearch::Lists => (
+                geometry::shell_exit_time(ki.pos - self.shells[i].centre, ki.vel, self.config.skin),
+                SHELL_EXIT,
+            ),
+            NeighbourSearch::Cells => self.cell_exit(ki.pos, ki.vel, self.cell_of[i]),
+        };
+        let mut mask = self.face_mask[i];
+        while mask != 0 {
+            let face = mask.trailing_zeros() as u8;
+            mask &= mask - 1;
+            let axis = (face / 2) as usize;
+            let (x, v) = (ki.pos[axis], ki.vel[axis]);
+            let t = if face.is_multiple_of(2) {
+                geometry::lower_wall_time(x, v, ki.radius, self.domain.lo[axis])
+            } else if self.domain.has_wall(face) {
+                geometry::upper_wall_time(x, v, ki.radius, self.domain.hi[axis])
+            } else {
+                geometry::upper_wall_time(x, v, 0.0, self.domain.hi[axis])
+            };
+            if t < best {
+                best = t;
+                let kind = if face % 2 == 1 && !self.domain.has_wall(face) {
+                    EventKind::Outlet
+                } else {
+                    EventKind::Wall
+                };
+                event = Scheduled {
+                    kind,
+                    face,
+                    partner: 0,
+                    partner_count: 0,
+                };
+            }
+        }
+        let now = self.now;
+        let mut best_entry = None;
+        // A pair that collided at this very instant may still touch and,
+        // by round-off, still look approaching; colliding it again at delay
+        // 0 would repeat for ever without moving the clock.
+        let just_hit = if self.last_collision[i] == now {
+            self.last_partner[i]
+        } else {
+            NO_PARTNER
+        };
+        let mut consider = |entry: u32, kin: &[Kinematics]| {
+            let (j, code) = neighbours::unpack(entry);
+            let kj = &kin[j as usize];
+            let pj = kj.position_at(now) + self.image_shift[code as usize];
+            let t = geometry::pair_contact_time_eager(
+                ki.pos - pj,
+                ki.vel - kj.vel,
+                ki.radius + kj.radius,
+            );
+            if t < best && !(t == 0.0 && j == just_hit) {
+                best = t;
+                best_entry = Some(entry);
+            }
+        };
+        match self.config.neighbours {
+            NeighbourSearch::Lists => {
+                for &entry in self.lists.list(i) {
+                    consider(entry, &self.kin);
+                }
+            }
+            NeighbourSearch::Cells => {
+                // At least 3 cells per periodic axis: images are exact.
+                self.cells.for_each_near_cell(self.cell_of[i], |e, image| {
+                    if e.index as usize != i {
+                        consider(
+                            neighbours::pack(e.index, image.unwrap_or(IDENTITY_IMAGE)),
+                            &self.kin,
+                        );
+                    }
+                });
+            }
+        }
+        if let Some(entry) = best_entry {
+            event = Scheduled {
+                kind: EventKind::Pair,
+                face: 0,
+                partner: entry,
+                partner_count: self.counter[neighbours::unpack(entry).0 as usize],
+            };
+        }
+        self.scheduled[i] = event;
+        self.queue.set(i as u32, now + best);
+    }
+
+    pub(super) fn process(&mut self, i: usize) {
+        let event = self.scheduled[i];
+        match event.kind {
+            EventKind::Pair => {
+                let (j, code) = neighbours::unpack(event.partner);
+                let j = j as usize;
+                if self.counter[j] != event.partner_count {
+                    self.counters.stale_events += 1;
+                    self.predict(i);
+                } else {
+                    self.collide_pair(i, j, code);
+                }
+            }
+            EventKind::Wall => self.collide_wall(i, event.face),
+            EventKind::Outlet => self.leave_through_outlet(i),
+            EventKind::CellCrossing => self.cross_cell(i, event.face),
+            EventKind::ShellExit => {
+                self.counters.neighbour_updates += 1;
+                self.rebuild_list(i);
+                self.predict(i);
+            }
+        }
+    }
+}

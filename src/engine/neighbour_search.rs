@@ -1,0 +1,189 @@
+//! Partner search: per-particle shell lists with list-expiry events, or
+//! cells with cell-crossing events ([`NeighbourSearch`]); entering the
+//! structure, crossing cells, rebuilding lists, periodic wraps.
+
+use glam::DVec3;
+
+use super::event_loop::{EventKind, Scheduled};
+use super::{Engine, NeighbourSearch, Record};
+use crate::domain::{AxisBoundary, Face, IDENTITY_IMAGE, mirror_code};
+use crate::neighbours;
+use crate::queue::EventQueue;
+
+impl<Q: EventQueue> Engine<Q> {
+    /// Puts a new particle into the neighbour structure.
+    pub(super) fn enter_grid(&mut self, i: usize) {
+        match self.config.neighbours {
+            NeighbourSearch::Lists => self.rebuild_list(i),
+            NeighbourSearch::Cells => {
+                let c = self.cells.coords(self.kin[i].pos);
+                self.move_to_cell(i, c);
+            }
+        }
+    }
+
+    /// Cells mode: records particle i in cell `c` and which domain faces
+    /// that cell touches.
+    pub(super) fn move_to_cell(&mut self, i: usize, c: [usize; 3]) {
+        self.cell_of[i] = c;
+        self.cells
+            .place_in(i, c, self.kin[i].pos, self.kin[i].radius);
+        let dims = self.cells.dims();
+        let mut mask = 0u8;
+        for axis in 0..3 {
+            if self.domain.axes[axis] != AxisBoundary::Walls {
+                continue;
+            }
+            if c[axis] == 0 {
+                mask |= 1 << (2 * axis);
+            }
+            if c[axis] + 1 == dims[axis] {
+                mask |= 1 << (2 * axis + 1);
+            }
+        }
+        self.face_mask[i] = mask;
+    }
+
+    /// Cells mode: delay until particle i's centre leaves its cell, and the
+    /// face it leaves through. Domain faces that are walls or the outlet
+    /// are not cell faces (their own events handle them).
+    pub(super) fn cell_exit(&self, pos: DVec3, vel: DVec3, c: [usize; 3]) -> (f64, Scheduled) {
+        let dims = self.cells.dims();
+        let lo = self.cells.cell_lo(c);
+        let width = self.cells.width();
+        let mut best = f64::INFINITY;
+        let mut face = 0;
+        for axis in 0..3 {
+            let v = vel[axis];
+            let periodic = self.domain.axes[axis] == AxisBoundary::Periodic;
+            let t = if v > 0.0 && (periodic || c[axis] + 1 < dims[axis]) {
+                (lo[axis] + width[axis] - pos[axis]) / v
+            } else if v < 0.0 && (periodic || c[axis] > 0) {
+                (lo[axis] - pos[axis]) / v
+            } else {
+                continue;
+            };
+            if t < best {
+                best = t;
+                face = (2 * axis + usize::from(v > 0.0)) as Face;
+            }
+        }
+        let event = Scheduled {
+            kind: EventKind::CellCrossing,
+            face,
+            partner: 0,
+            partner_count: 0,
+        };
+        (best.max(0.0), event)
+    }
+
+    /// Cells mode: moves particle i through `face` of its cell into the
+    /// next one, wrapping around periodic axes.
+    pub(super) fn cross_cell(&mut self, i: usize, face: Face) {
+        let axis = (face / 2) as usize;
+        let n = self.cells.dims()[axis];
+        let mut c = self.cell_of[i];
+        let size = self.domain.size()[axis];
+        let mut shift = 0.0;
+        if face % 2 == 1 {
+            if c[axis] + 1 == n {
+                c[axis] = 0;
+                shift = -size;
+            } else {
+                c[axis] += 1;
+            }
+        } else if c[axis] == 0 {
+            c[axis] = n - 1;
+            shift = size;
+        } else {
+            c[axis] -= 1;
+        }
+        if shift != 0.0 {
+            self.sync(i);
+            let mut pos = self.kin[i].pos;
+            pos[axis] += shift;
+            self.set_wrapped_position(i, pos);
+        }
+        self.counters.neighbour_updates += 1;
+        self.move_to_cell(i, c);
+        self.predict(i);
+    }
+
+    /// Moves a synchronised particle to its periodic image `pos`.
+    pub(super) fn set_wrapped_position(&mut self, i: usize, pos: DVec3) {
+        self.kin[i].pos = pos;
+        // Others' predictions hold image codes relative to the old
+        // coordinates: mark them stale.
+        self.counter[i] = self.counter[i].wrapping_add(1);
+        if self.config.record_events {
+            self.records.push(Record::Wrap {
+                time: self.time(),
+                clock: self.now,
+                id: self.id[i],
+                state: self.state(i),
+            });
+        }
+    }
+
+    /// Rebuilds particle i's shell around its current position: wraps it
+    /// into the box, drops it from its old neighbours' lists and links it
+    /// with every particle whose shell overlaps the new one.
+    pub(super) fn rebuild_list(&mut self, i: usize) {
+        let pos = self.kin[i].position_at(self.now);
+        let centre = self.domain.wrap(pos);
+        if centre != pos {
+            self.sync(i);
+            self.set_wrapped_position(i, centre);
+        }
+        for k in 0..self.lists.list(i).len() {
+            let (j, _) = neighbours::unpack(self.lists.list(i)[k]);
+            self.lists.remove_index(j as usize, i as u32);
+        }
+        self.lists.clear(i);
+        self.shells[i].centre = centre;
+        let ri = self.shells[i].reach;
+        self.cells.place(i, centre, ri);
+        // Disjoint field borrows: the grid is read while the lists change.
+        let (lists, domain, shifts) = (&mut self.lists, &self.domain, &self.image_shift);
+        let periodic = self.periodic;
+        self.cells.for_each_near(centre, |e, image| {
+            let j = e.index as usize;
+            if j == i {
+                return;
+            }
+            let d = e.centre - centre;
+            let code = match image {
+                Some(code) => code,
+                None if periodic => domain.image_code(d),
+                None => IDENTITY_IMAGE,
+            };
+            // The grid stores the reach rounded up to f32: slightly
+            // generous lists are safe, missing pairs would not be.
+            let reach = ri + e.reach as f64;
+            if (d + shifts[code as usize]).length_squared() < reach * reach {
+                // Entry in i's list: j appears shifted by `code` relative to i.
+                lists.push(i, neighbours::pack(j as u32, code));
+                lists.push(j, neighbours::pack(i as u32, mirror_code(code)));
+            }
+        });
+        let mut mask = 0u8;
+        for axis in 0..3 {
+            if self.domain.axes[axis] != AxisBoundary::Walls {
+                continue;
+            }
+            if centre[axis] - ri <= self.domain.lo[axis] {
+                mask |= 1 << (2 * axis);
+            }
+            let upper = (2 * axis + 1) as Face;
+            let reach_hi = if self.domain.has_wall(upper) {
+                ri
+            } else {
+                self.config.skin
+            };
+            if centre[axis] + reach_hi >= self.domain.hi[axis] {
+                mask |= 1 << upper;
+            }
+        }
+        self.face_mask[i] = mask;
+    }
+}

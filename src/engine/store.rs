@@ -1,0 +1,204 @@
+//! The particle store: structure-of-arrays state of every slot (lazy
+//! kinematics, spin, mass, material, ids, event counters), the views the
+//! rest of the program reads, kicks, synchronisation, totals and the
+//! renumbering in cell order for memory locality.
+
+use glam::DVec3;
+
+use super::event_loop::SHELL_EXIT;
+use super::{Engine, NO_PARTNER, State};
+use crate::collision::Body;
+use crate::neighbours::NeighbourLists;
+use crate::particles::NewParticle;
+use crate::queue::EventQueue;
+
+/// State of one particle at the engine's current time.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ParticleView {
+    pub id: u64,
+    pub pos: DVec3,
+    pub vel: DVec3,
+    pub omega: DVec3,
+    pub radius: f64,
+    pub mass: f64,
+    pub material: u16,
+}
+
+impl From<ParticleView> for NewParticle {
+    fn from(p: ParticleView) -> Self {
+        NewParticle {
+            pos: p.pos,
+            vel: p.vel,
+            omega: p.omega,
+            radius: p.radius,
+            material: p.material,
+        }
+    }
+}
+
+/// A neighbour shell: centre where the list was built, radius `R + δ`.
+#[derive(Clone, Copy, Debug, Default)]
+#[repr(C, align(32))]
+pub(super) struct Shell {
+    pub(super) centre: DVec3,
+    pub(super) reach: f64,
+}
+
+/// Position, velocity, radius and the time they refer to: one cache line.
+#[derive(Clone, Copy, Debug, Default)]
+#[repr(C, align(64))]
+pub(super) struct Kinematics {
+    pub(super) pos: DVec3,
+    pub(super) time: f64,
+    pub(super) vel: DVec3,
+    pub(super) radius: f64,
+}
+
+impl Kinematics {
+    #[inline]
+    pub(super) fn position_at(&self, t: f64) -> DVec3 {
+        self.pos + self.vel * (t - self.time)
+    }
+}
+
+impl<Q: EventQueue> Engine<Q> {
+    /// Moves every particle to the current time.
+    pub fn synchronise(&mut self) {
+        let now = self.now;
+        for (k, &active) in self.kin.iter_mut().zip(&self.active) {
+            if active {
+                k.pos = k.position_at(now);
+                k.time = now;
+            }
+        }
+    }
+
+    /// Renumbers the particles in cell order so that neighbours in space
+    /// are neighbours in memory, and rebuilds the neighbour structure.
+    /// Call right after [`Engine::end_flow_step`] (all particles
+    /// synchronised, every event to be re-predicted). Ids are kept; slots
+    /// change, and free slots are compacted away. Deterministic: the order
+    /// is by cell, then by id.
+    pub fn reorder_by_cell(&mut self) {
+        assert!(self.needs_prediction, "reorder only between flow steps");
+        let mut order: Vec<(usize, u64, usize)> = (0..self.kin.len())
+            .filter(|&i| self.active[i])
+            .map(|i| {
+                let c = self.cells.coords(self.domain.wrap(self.kin[i].pos));
+                let d = self.cells.dims();
+                (c[0] + d[0] * (c[1] + d[1] * c[2]), self.id[i], i)
+            })
+            .collect();
+        order.sort_unstable();
+        let mut new_slot = vec![NO_PARTNER; self.kin.len()];
+        for (k, &(_, _, old)) in order.iter().enumerate() {
+            new_slot[old] = k as u32;
+        }
+        fn permute<T: Copy>(v: &mut Vec<T>, order: &[(usize, u64, usize)]) {
+            *v = order.iter().map(|&(_, _, old)| v[old]).collect();
+        }
+        permute(&mut self.kin, &order);
+        permute(&mut self.omega, &order);
+        permute(&mut self.inv_mass, &order);
+        permute(&mut self.material, &order);
+        permute(&mut self.id, &order);
+        permute(&mut self.active, &order);
+        permute(&mut self.shells, &order);
+        permute(&mut self.last_collision, &order);
+        permute(&mut self.last_partner, &order);
+        permute(&mut self.step_collisions, &order);
+        for p in &mut self.last_partner {
+            if *p != NO_PARTNER {
+                *p = new_slot[*p as usize];
+            }
+        }
+        let n = order.len();
+        // Every prediction is redone: event counters start afresh.
+        self.counter = vec![0; n];
+        self.scheduled = vec![SHELL_EXIT; n];
+        self.face_mask = vec![0; n];
+        self.cell_of = vec![[0; 3]; n];
+        self.free_slots.clear();
+        self.queue.clear();
+        self.lists = NeighbourLists::new(n, self.lists.stride());
+        self.cells = self.cells.emptied(n);
+        for i in 0..n {
+            self.shells[i].centre = self.kin[i].pos;
+            self.enter_grid(i);
+        }
+    }
+
+    /// Adds `dv` to the velocity of every particle (a force over a flow
+    /// step). Call between [`Engine::end_flow_step`] and the next advance.
+    pub fn kick_all(&mut self, dv: DVec3) {
+        for (k, &active) in self.kin.iter_mut().zip(&self.active) {
+            if active {
+                k.vel += dv;
+            }
+        }
+        self.needs_prediction = true;
+    }
+
+    /// Adds `dv[slot]` to the velocity of the particle in each active slot
+    /// (m/s): the per-particle kicks of gas drag and pressure gradient.
+    /// `dv` has one entry per slot ([`Engine::slots`]); free slots ignore theirs.
+    pub fn kick_slots(&mut self, dv: &[DVec3]) {
+        assert_eq!(dv.len(), self.kin.len(), "one kick per slot");
+        for ((k, &active), &d) in self.kin.iter_mut().zip(&self.active).zip(dv) {
+            if active {
+                k.vel += d;
+            }
+        }
+        self.needs_prediction = true;
+    }
+
+    #[inline]
+    pub(super) fn sync(&mut self, i: usize) {
+        let k = &mut self.kin[i];
+        k.pos = k.position_at(self.now);
+        k.time = self.now;
+    }
+
+    pub(super) fn state(&self, i: usize) -> State {
+        State {
+            pos: self.kin[i].pos,
+            vel: self.kin[i].vel,
+            omega: self.omega[i],
+        }
+    }
+
+    pub(super) fn body(&self, i: usize) -> Body {
+        Body {
+            vel: self.kin[i].vel,
+            omega: self.omega[i],
+            radius: self.kin[i].radius,
+            inv_mass: self.inv_mass[i],
+        }
+    }
+
+    /// Kinetic energy split into translational and rotational parts (J).
+    pub fn kinetic_energy(&self) -> (f64, f64) {
+        let mut trans = 0.0;
+        let mut rot = 0.0;
+        for i in 0..self.kin.len() {
+            if self.active[i] {
+                let m = 1.0 / self.inv_mass[i];
+                trans += 0.5 * m * self.kin[i].vel.length_squared();
+                let r = self.kin[i].radius;
+                rot += 0.5 * 0.4 * m * r * r * self.omega[i].length_squared();
+            }
+        }
+        (trans, rot)
+    }
+
+    /// Total linear momentum (kg m/s).
+    pub fn momentum(&self) -> DVec3 {
+        let mut p = DVec3::ZERO;
+        for i in 0..self.kin.len() {
+            if self.active[i] {
+                p += self.kin[i].vel / self.inv_mass[i];
+            }
+        }
+        p
+    }
+}
