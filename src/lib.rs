@@ -1,9 +1,25 @@
-//! edpm: event-driven hard-sphere discrete particle model.
+//! edpm: event-driven hard-sphere discrete particle model for dense
+//! gas–solid flows. Units are SI throughout.
 //!
-//! Data flow: [`scenario`] → [`particles`], [`materials`] and [`domain`] →
-//! [`engine`] (event times from [`geometry`], impulses from [`collision`],
-//! ordering by [`queue`], neighbour shells from [`neighbours`]) → output.
-//! Units are SI throughout.
+//! The modules follow the data flow of a run (ARCHITECTURE.md); a module
+//! imports only from its own stage or earlier ones:
+//!
+//! 1. physics without state: the box and its grid ([`domain`]),
+//!    [`particles`], [`materials`], event times ([`geometry`]), impulses
+//!    ([`collision`]) and soft contact forces ([`contact`]);
+//! 2. the event-driven engine: event order ([`queue`]), partner search
+//!    ([`neighbours`]) and the [`engine`] itself, behind
+//!    [`engine::ParticleDynamics`];
+//! 3. the [`gas`] phase and its coupling to the particles;
+//! 4. file formats ([`io`]);
+//! 5. the input: [`scenario`] files and the [`initial`] state;
+//! 6. a run: the flow-step loop and its recorders ([`run`]); `edpm bench`
+//!    ([`bench`]); `edpm sweep` over parameter values ([`sweep`]);
+//! 7. after a run: [`analysis`], [`plot`] and event-log [`replay`].
+//!
+//! [`random`] and [`timing`] are small helpers for every stage. The
+//! [`prelude`] gathers what a library user needs to set up and run a
+//! simulation.
 
 pub mod analysis;
 pub mod bench;
@@ -12,21 +28,19 @@ pub mod collision;
 pub mod contact;
 pub mod domain;
 pub mod engine;
-pub mod eventlog;
 pub mod gas;
 pub mod geometry;
 pub mod initial;
+pub mod io;
 pub mod materials;
 pub mod neighbours;
-pub mod output;
 pub mod particles;
 pub mod plot;
+pub mod prelude;
 pub mod queue;
 pub mod random;
 pub mod replay;
 pub mod run;
 pub mod scenario;
-pub mod snapshot;
 pub mod sweep;
 pub mod timing;
-pub mod vtk;

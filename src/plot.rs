@@ -29,7 +29,7 @@ use plotters::style::FontStyle;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
 use plotters_backend::{BackendCoord, DrawingErrorKind};
 
-use crate::output::write_atomic;
+use crate::io::output::write_atomic;
 
 /// DejaVu Sans (Bitstream Vera license, see assets/fonts/LICENSE).
 const FONT_BYTES: &[u8] = include_bytes!("../assets/fonts/DejaVuSans.ttf");

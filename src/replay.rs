@@ -8,8 +8,10 @@ use anyhow::Context;
 use glam::DVec3;
 
 use crate::collision::{self, Body};
-use crate::eventlog::{Block, LogHeader, LogReader, LogRecord, RecordKind, Replay, ReplayParticle};
-use crate::output::write_atomic;
+use crate::io::eventlog::{
+    Block, LogHeader, LogReader, LogRecord, RecordKind, Replay, ReplayParticle,
+};
+use crate::io::output::write_atomic;
 
 /// What `edpm replay` should do.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -480,7 +482,7 @@ fn write_state_vtk(particles: &[(u64, ReplayParticle)], path: &Path) -> anyhow::
     let particles = particles
         .iter()
         .map(|(id, p)| {
-            Ok(crate::vtk::VtkParticle {
+            Ok(crate::io::vtk::VtkParticle {
                 id: *id,
                 pos: p.state.pos,
                 vel: p.state.vel,
@@ -491,5 +493,5 @@ fn write_state_vtk(particles: &[(u64, ReplayParticle)], path: &Path) -> anyhow::
             })
         })
         .collect::<anyhow::Result<Vec<_>>>()?;
-    crate::vtk::write_particles(path, &particles)
+    crate::io::vtk::write_particles(path, &particles)
 }

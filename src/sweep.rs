@@ -14,7 +14,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 
 use anyhow::{Context, bail};
 
-use crate::output::write_atomic;
+use crate::io::output::write_atomic;
 use crate::scenario::Scenario;
 
 /// What `edpm sweep` runs and tabulates.

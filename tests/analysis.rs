@@ -18,8 +18,8 @@ use edpm::analysis::velocity::{
     Histograms, MomentAccumulator, VelocityStats, gaussian_pdf, local_fluctuations,
     maxwell_speed_pdf,
 };
+use edpm::io::snapshot::{CollisionTally, SnapshotParticle, TallyGrid};
 use edpm::random::standard_normal;
-use edpm::snapshot::{CollisionTally, SnapshotParticle, TallyGrid};
 use glam::DVec3;
 use rand::{RngExt, SeedableRng};
 use rand_xoshiro::Xoshiro256PlusPlus;
@@ -1049,7 +1049,7 @@ fn analyse_planar_bidisperse_bed() {
     let c = &summary["counters"];
     let num = |k: &str| c[k].as_f64().unwrap();
     let (mut altered, mut undissipated, mut normal, mut tangential) = (0.0, 0.0, 0.0, 0.0);
-    for snap in edpm::snapshot::Snapshot::read_all(&run).unwrap() {
+    for snap in edpm::io::snapshot::Snapshot::read_all(&run).unwrap() {
         let t = snap.collisions.unwrap();
         altered += t.pair_altered.iter().chain(&t.wall_altered).sum::<u64>() as f64;
         undissipated += t

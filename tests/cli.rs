@@ -162,7 +162,7 @@ fn run_writes_summary_time_series_particles_and_checkpoint() {
 
     // The checkpoint holds the same particles, bit for bit (the CSV prints
     // shortest round-trip decimals).
-    let cp = edpm::output::Checkpoint::read(&dir.join("final_state.bin")).unwrap();
+    let cp = edpm::io::output::Checkpoint::read(&dir.join("final_state.bin")).unwrap();
     assert_eq!(cp.particles.len(), 500);
     assert!((cp.time - 0.02).abs() < 1e-15);
     for (p, r) in cp.particles.iter().zip(&rows) {
@@ -436,7 +436,7 @@ fn checkpoint_round_trip_restarts_from_the_final_state() {
         rows[0][5]
     );
     // And the particles themselves: same radii and positions at the start.
-    let cp1 = edpm::output::Checkpoint::read(&first.join("final_state.bin")).unwrap();
+    let cp1 = edpm::io::output::Checkpoint::read(&first.join("final_state.bin")).unwrap();
     let (_, p2) = csv_rows(&second.join("final_particles.csv"));
     let mut r1: Vec<f64> = cp1.particles.iter().map(|p| p.radius).collect();
     let mut r2: Vec<f64> = p2.iter().map(|r| r[2]).collect();

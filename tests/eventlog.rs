@@ -3,7 +3,7 @@
 
 use std::path::{Path, PathBuf};
 
-use edpm::eventlog::{Block, LogReader};
+use edpm::io::eventlog::{Block, LogReader};
 use edpm::replay::{ReplayOptions, replay_log};
 use edpm::run::{RunOptions, run_scenario_with};
 use edpm::scenario::Scenario;
@@ -225,7 +225,7 @@ fn replay_at_a_time_reproduces_the_engine_state_at_that_time() {
         },
     )
     .unwrap();
-    let bits = |r: &edpm::eventlog::Replay| -> Vec<(u64, [u64; 9])> {
+    let bits = |r: &edpm::io::eventlog::Replay| -> Vec<(u64, [u64; 9])> {
         r.positions_at(t)
             .iter()
             .map(|(id, p)| {

@@ -25,16 +25,16 @@
 use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::path::{Path, PathBuf};
 
-use edpm::eventlog::LogReader;
-use edpm::output::Checkpoint;
+use edpm::io::eventlog::LogReader;
+use edpm::io::output::Checkpoint;
+use edpm::io::snapshot::{
+    CollisionTally, GasSnapshot, SNAPSHOT_VERSION, Snapshot, SnapshotParticle, TallyGrid,
+};
 use edpm::particles::NewParticle;
 use edpm::queue::IndexedHeap;
 use edpm::replay::{ReplayOptions, replay_log};
 use edpm::run::{RunOptions, build_engine, run_scenario_with};
 use edpm::scenario::Scenario;
-use edpm::snapshot::{
-    CollisionTally, GasSnapshot, SNAPSHOT_VERSION, Snapshot, SnapshotParticle, TallyGrid,
-};
 use glam::DVec3;
 use rand::{RngExt, SeedableRng};
 use rand_xoshiro::Xoshiro256PlusPlus;
@@ -783,7 +783,7 @@ fn checkpoint_setups(dir: &Path) -> Vec<(Scenario, Vec<u8>)> {
         let mut rng = Xoshiro256PlusPlus::seed_from_u64(original.seed);
         let particles = edpm::initial::initial_particles(&original, &mut rng).unwrap();
         let cp = Checkpoint {
-            version: edpm::output::CHECKPOINT_VERSION,
+            version: edpm::io::output::CHECKPOINT_VERSION,
             time: 0.5,
             particles,
         };

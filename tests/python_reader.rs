@@ -9,7 +9,7 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-use edpm::eventlog::{Block, LogReader};
+use edpm::io::eventlog::{Block, LogReader};
 
 const MANIFEST_DIR: &str = env!("CARGO_MANIFEST_DIR");
 

@@ -571,8 +571,8 @@ fn bad_t_end_option_is_refused() {
 /// limits refuse, are errors naming the file or field.
 #[test]
 fn damaged_or_unsuitable_checkpoints_are_refused() {
-    let cp = edpm::output::Checkpoint {
-        version: edpm::output::CHECKPOINT_VERSION,
+    let cp = edpm::io::output::Checkpoint {
+        version: edpm::io::output::CHECKPOINT_VERSION,
         time: 0.0,
         particles: vec![NewParticle {
             pos: DVec3::new(0.01, 0.01, 0.01),
@@ -587,7 +587,7 @@ fn damaged_or_unsuitable_checkpoints_are_refused() {
     cp.write(&path).unwrap();
     let mut bytes = std::fs::read(&path).unwrap();
     bytes.extend_from_slice(&[1, 2, 3]);
-    let e = edpm::output::Checkpoint::from_bytes(&bytes, "state.bin")
+    let e = edpm::io::output::Checkpoint::from_bytes(&bytes, "state.bin")
         .unwrap_err()
         .to_string();
     assert_eq!(

@@ -9,9 +9,9 @@ use anyhow::Context;
 
 use super::driver::AnalysisSummary;
 use super::figures::Table;
-use crate::output::{CsvTable, write_atomic};
+use crate::io::output::{CsvTable, write_atomic};
+use crate::io::snapshot::Snapshot;
 use crate::plot::{self, Series};
-use crate::snapshot::Snapshot;
 
 /// Writes `comparison.csv`, `comparison.md`, `comparison.png` and
 /// `comparison_profiles.png` into `out_dir`.

@@ -29,8 +29,8 @@ use super::profiles::{
 };
 use super::segregation::{Bidisperse, classify, segregation};
 use super::velocity::{Histograms, MomentAccumulator, VelocityStats, local_fluctuations};
-use crate::output::{CsvTable, write_atomic};
-use crate::snapshot::{Snapshot, TallyGrid};
+use crate::io::output::{CsvTable, write_atomic};
+use crate::io::snapshot::{Snapshot, TallyGrid};
 
 /// Options of `edpm analyse`.
 #[derive(Clone, Debug, PartialEq)]

@@ -20,7 +20,7 @@ use glam::DVec3;
 use serde::Serialize;
 
 use super::grid::{cell_sums, moment_of_inertia};
-use crate::snapshot::{SnapshotParticle, TallyGrid};
+use crate::io::snapshot::{SnapshotParticle, TallyGrid};
 
 /// Energies of one snapshot (J).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]

@@ -8,8 +8,8 @@ use std::path::Path;
 use anyhow::Context;
 
 use super::figure_spec::{FIGURES, FigureSpec};
+use crate::io::snapshot::Snapshot;
 use crate::plot::{self, ParticlePanel, Series};
-use crate::snapshot::Snapshot;
 
 /// A CSV table of numbers with a header.
 pub(super) struct Table {

@@ -9,7 +9,7 @@
 
 use glam::DVec3;
 
-use crate::snapshot::{SnapshotParticle, TallyGrid};
+use crate::io::snapshot::{SnapshotParticle, TallyGrid};
 
 /// Volume of a sphere of radius `r` (m³).
 pub fn sphere_volume(r: f64) -> f64 {

@@ -73,7 +73,7 @@ use serde::Serialize;
 
 use super::grid::{cell_sums, cell_volume};
 use super::velocity::local_fluctuations;
-use crate::snapshot::{CollisionTally, SnapshotParticle};
+use crate::io::snapshot::{CollisionTally, SnapshotParticle};
 
 /// Maximum packing of the Ma–Ahmadi radial distribution function
 /// (seed 000 Table 5).

@@ -2,7 +2,7 @@
 //! comparison with kinetic theory and experiments. SI units throughout.
 //!
 //! The analyses are pure functions on plain data (slices of
-//! [`SnapshotParticle`](crate::snapshot::SnapshotParticle), grids, tallies)
+//! [`SnapshotParticle`](crate::io::snapshot::SnapshotParticle), grids, tallies)
 //! so that they can be tested on synthetic data; [`analyse_run`] drives them
 //! over `RUN_DIR/snapshots/*.bin` and writes `RUN_DIR/analysis/`.
 //!

@@ -15,7 +15,7 @@ use glam::DVec3;
 use serde::Serialize;
 
 use super::grid::{CellSums, cell_coords, cell_volume};
-use crate::snapshot::{GasSnapshot, TallyGrid};
+use crate::io::snapshot::{GasSnapshot, TallyGrid};
 
 /// Axis names for output.
 pub const AXIS_NAMES: [&str; 3] = ["x", "y", "z"];

@@ -15,7 +15,7 @@ use serde::Serialize;
 
 use super::grid::sphere_volume;
 use super::profiles::Orientation;
-use crate::snapshot::SnapshotParticle;
+use crate::io::snapshot::SnapshotParticle;
 
 /// One species: material and radius (m); mass (kg) of the first particle
 /// found.

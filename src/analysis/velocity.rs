@@ -50,7 +50,7 @@ use glam::DVec3;
 use serde::Serialize;
 
 use super::grid::{cell_sums, moment_of_inertia};
-use crate::snapshot::{SnapshotParticle, TallyGrid};
+use crate::io::snapshot::{SnapshotParticle, TallyGrid};
 
 /// The fluctuation of one particle relative to its cell.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -4,43 +4,14 @@
 
 use glam::DVec3;
 
-use super::store::Kinematics;
+use super::store::{EventKind, Kinematics, SHELL_EXIT, Scheduled};
 use super::{
     CollapseReport, CollisionRecord, Engine, NO_PARTNER, NeighbourSearch, Record, StallReport,
 };
-use crate::domain::{Face, IDENTITY_IMAGE};
+use crate::domain::IDENTITY_IMAGE;
 use crate::geometry;
 use crate::neighbours;
 use crate::queue::EventQueue;
-
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub(super) enum EventKind {
-    Pair,
-    Wall,
-    Outlet,
-    /// Lists mode: the particle leaves its neighbour shell.
-    ShellExit,
-    /// Cells mode: the particle crosses `face` of its cell.
-    CellCrossing,
-}
-
-/// A particle's pending event. For pairs, `partner` is a packed list entry
-/// (index and image code) and `partner_count` the partner's event counter
-/// when the prediction was made.
-#[derive(Clone, Copy, Debug)]
-pub(super) struct Scheduled {
-    pub(super) kind: EventKind,
-    pub(super) face: Face,
-    pub(super) partner: u32,
-    pub(super) partner_count: u32,
-}
-
-pub(super) const SHELL_EXIT: Scheduled = Scheduled {
-    kind: EventKind::ShellExit,
-    face: 0,
-    partner: 0,
-    partner_count: 0,
-};
 
 /// Stall watchdog: a window is `max(STALL_MIN_WINDOW, STALL_EVENTS_PER_PARTICLE
 /// × particles)` events; the flow step stalls when a window advances the

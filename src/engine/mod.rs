@@ -29,8 +29,7 @@ pub use records::{
 };
 pub use store::ParticleView;
 
-use event_loop::{SHELL_EXIT, Scheduled};
-use store::{Kinematics, Shell};
+use store::{Kinematics, SHELL_EXIT, Scheduled, Shell};
 
 use glam::DVec3;
 use rand::SeedableRng;
@@ -533,7 +532,7 @@ impl<Q: EventQueue> Engine<Q> {
 
 #[cfg(test)]
 mod tests {
-    use super::event_loop::EventKind;
+    use super::store::EventKind;
     use super::*;
     use crate::collision::ContactParams;
     use crate::domain::AxisBoundary;

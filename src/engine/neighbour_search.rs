@@ -4,7 +4,7 @@
 
 use glam::DVec3;
 
-use super::event_loop::{EventKind, Scheduled};
+use super::store::{EventKind, Scheduled};
 use super::{Engine, NeighbourSearch, Record};
 use crate::domain::{AxisBoundary, Face, IDENTITY_IMAGE, mirror_code};
 use crate::neighbours;

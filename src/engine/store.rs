@@ -1,13 +1,14 @@
 //! The particle store: structure-of-arrays state of every slot (lazy
 //! kinematics, spin, mass, material, ids, event counters), the views the
 //! rest of the program reads, kicks, synchronisation, totals and the
-//! renumbering in cell order for memory locality.
+//! renumbering in cell order for memory locality; and the pending event
+//! each particle holds (`Scheduled`).
 
 use glam::DVec3;
 
-use super::event_loop::SHELL_EXIT;
 use super::{Engine, NO_PARTNER, State};
 use crate::collision::Body;
+use crate::domain::Face;
 use crate::neighbours::NeighbourLists;
 use crate::particles::NewParticle;
 use crate::queue::EventQueue;
@@ -202,3 +203,32 @@ impl<Q: EventQueue> Engine<Q> {
         p
     }
 }
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum EventKind {
+    Pair,
+    Wall,
+    Outlet,
+    /// Lists mode: the particle leaves its neighbour shell.
+    ShellExit,
+    /// Cells mode: the particle crosses `face` of its cell.
+    CellCrossing,
+}
+
+/// A particle's pending event. For pairs, `partner` is a packed list entry
+/// (index and image code) and `partner_count` the partner's event counter
+/// when the prediction was made.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Scheduled {
+    pub(super) kind: EventKind,
+    pub(super) face: Face,
+    pub(super) partner: u32,
+    pub(super) partner_count: u32,
+}
+
+pub(super) const SHELL_EXIT: Scheduled = Scheduled {
+    kind: EventKind::ShellExit,
+    face: 0,
+    partner: 0,
+    partner_count: 0,
+};

@@ -30,7 +30,7 @@ use recorders::{Recorder, RunEnd, StepEnd};
 
 use crate::engine::{CollapseReport, Counters, Engine, NeighbourSearch};
 use crate::gas::flow::{GasRun, GasTotals};
-use crate::output::write_atomic;
+use crate::io::output::write_atomic;
 use crate::queue::{CalendarQueue, EventQueue, IndexedHeap, QueueKind, ReferenceQueue};
 use crate::scenario::{Scenario, Splitting};
 

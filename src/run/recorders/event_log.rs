@@ -8,7 +8,7 @@ use glam::DVec3;
 
 use super::{Recorder, RunEnd, StepEnd};
 use crate::engine::Engine;
-use crate::eventlog::{
+use crate::io::eventlog::{
     CheckpointHeader, LogHeader, LogRecord, LogWriter, RecordKind, checkpoint_particles,
 };
 use crate::particles::NewParticle;

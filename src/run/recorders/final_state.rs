@@ -9,7 +9,7 @@ use anyhow::Context;
 
 use super::{Recorder, RunEnd};
 use crate::engine::Engine;
-use crate::output::{CHECKPOINT_VERSION, Checkpoint, write_atomic};
+use crate::io::output::{CHECKPOINT_VERSION, Checkpoint, write_atomic};
 use crate::particles::NewParticle;
 use crate::queue::EventQueue;
 

@@ -1,4 +1,4 @@
-//! Binary particle snapshots (`snapshots/NNNNNN.bin`, src/snapshot.rs) for
+//! Binary particle snapshots (`snapshots/NNNNNN.bin`, src/io/snapshot.rs) for
 //! `edpm analyse`, each with the collision tally of the interval before it.
 
 use std::path::{Path, PathBuf};
@@ -10,14 +10,14 @@ use super::{Recorder, StepEnd, due, next_multiple};
 use crate::domain::AxisBoundary;
 use crate::engine::{Engine, Record};
 use crate::gas::flow::GasRun;
-use crate::queue::EventQueue;
-use crate::scenario::Scenario;
-use crate::snapshot::{
+use crate::io::snapshot::{
     CollisionTally, GasSnapshot, SNAPSHOT_VERSION, Snapshot, SnapshotParticle, TallyGrid,
 };
+use crate::queue::EventQueue;
+use crate::scenario::Scenario;
 
 /// Binary snapshots for `edpm analyse`, with the collision tally of each
-/// interval (see `src/snapshot.rs`).
+/// interval (see `src/io/snapshot.rs`).
 pub struct AnalysisSnapshots {
     dir: PathBuf,
     interval: f64,

@@ -9,7 +9,7 @@ use glam::DVec3;
 use super::{Recorder, RunEnd, StepEnd, due, next_multiple};
 use crate::engine::{Counters, Engine};
 use crate::gas::flow::{GAS_SERIES_HEADER, GasRun};
-use crate::output::CsvTable;
+use crate::io::output::CsvTable;
 use crate::queue::EventQueue;
 
 const TIME_SERIES_HEADER: [&str; 17] = [

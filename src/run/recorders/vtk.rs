@@ -1,5 +1,5 @@
 //! VTK snapshots for ParaView: particles (`vtk/particles_NNNNNN.vtp`) and
-//! gas fields (`vtk/gas_NNNNNN.vti`) with `.pvd` series (src/vtk.rs).
+//! gas fields (`vtk/gas_NNNNNN.vti`) with `.pvd` series (src/io/vtk.rs).
 
 use std::path::{Path, PathBuf};
 
@@ -8,8 +8,8 @@ use anyhow::Context;
 use super::{Recorder, StepEnd, due, next_multiple};
 use crate::engine::Engine;
 use crate::gas::flow::GasRun;
+use crate::io::vtk::{PvdSeries, VtkParticle};
 use crate::queue::EventQueue;
-use crate::vtk::{PvdSeries, VtkParticle};
 
 /// VTK snapshots of particles (and gas) with ParaView `.pvd` series.
 pub struct VtkSeries {
@@ -54,7 +54,7 @@ impl VtkSeries {
                 material: p.material,
             })
             .collect();
-        crate::vtk::write_particles(&self.dir.join(&name), &particles)?;
+        crate::io::vtk::write_particles(&self.dir.join(&name), &particles)?;
         self.particles.push(t, format!("vtk/{name}"));
         self.particles.write()?;
         if let (Some(series), Some(g)) = (self.gas.as_mut(), gas) {
@@ -74,10 +74,10 @@ impl VtkSeries {
 fn write_gas_vtk(g: &GasRun, path: &Path) -> anyhow::Result<()> {
     let empty: &[f64] = &[];
     let g = &g.gas;
-    crate::vtk::write_gas(
+    crate::io::vtk::write_gas(
         path,
         &g.grid,
-        &crate::vtk::GasFields {
+        &crate::io::vtk::GasFields {
             gas_fraction: &g.gas_fraction,
             pressure: &g.pressure,
             density: &g.density,

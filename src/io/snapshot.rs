@@ -13,7 +13,7 @@ use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
 use crate::engine::{CollisionRecord, ParticleView, Partner};
-use crate::output::write_atomic;
+use crate::io::output::write_atomic;
 
 /// Version of the snapshot format: 2 split the tally's dissipation into
 /// normal and tangential parts and added the TC/guard alterations.

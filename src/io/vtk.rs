@@ -51,7 +51,7 @@ use anyhow::{Context, bail, ensure};
 use glam::DVec3;
 
 use crate::domain::grid::GridGeometry;
-use crate::output::write_atomic;
+use crate::io::output::write_atomic;
 
 /// One particle as written to VTK.
 #[derive(Clone, Copy, Debug, PartialEq)]
