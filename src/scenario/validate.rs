@@ -85,107 +85,10 @@ pub(crate) fn validate(ctx: &Ctx, raw: RawScenario) -> R<Scenario> {
     let seed = ctx.uint("seed", &raw.seed)?;
 
     // ---- materials
-    if raw.materials.is_empty() {
-        return Err(ctx.err("materials", "at least one [[materials]] entry is required"));
-    }
-    if raw.materials.len() > u16::MAX as usize {
-        return Err(ctx.err(
-            "materials",
-            format!(
-                "at most {} materials, got {}",
-                u16::MAX,
-                raw.materials.len()
-            ),
-        ));
-    }
-    let mut materials = Vec::with_capacity(raw.materials.len());
-    let mut material_index: HashMap<String, u16> = HashMap::new();
-    for (i, m) in raw.materials.iter().enumerate() {
-        let path = format!("materials[{i}]");
-        check_unique_name(
-            ctx,
-            &path,
-            &m.name,
-            &material_index,
-            "material",
-            "materials",
-        )?;
-        let density = match m.density {
-            Some(rho) => {
-                let (lo, hi) = limits::DENSITY_RANGE;
-                let p = format!("{path}.density");
-                ctx.positive(&p, rho)?;
-                if !(lo..=hi).contains(&rho) {
-                    return Err(ctx.err(
-                        p,
-                        format!(
-                            "must be in [{lo:?}, {hi:?}] kg/m³ (aerogels are above 0.1, osmium is 22 600), got {rho:?}"
-                        ),
-                    ));
-                }
-                Some(rho)
-            }
-            None => None,
-        };
-        material_index.insert(m.name.clone(), i as u16);
-        materials.push(Material {
-            name: m.name.clone(),
-            density,
-        });
-    }
-    let material_names = || {
-        materials
-            .iter()
-            .map(|m| format!("'{}'", m.name))
-            .collect::<Vec<_>>()
-            .join(", ")
-    };
-    let find_material = |path: &str, name: &str| -> R<u16> {
-        material_index.get(name).copied().ok_or_else(|| {
-            ctx.err(
-                path,
-                format!("unknown material '{name}'; defined: {}", material_names()),
-            )
-        })
-    };
-
+    let (materials, material_index) = validate_materials(ctx, &raw.materials)?;
     // ---- domain
-    let lo = ctx.vec3("domain.lo", raw.domain.lo)?;
-    let hi = ctx.vec3("domain.hi", raw.domain.hi)?;
-    for a in 0..3 {
-        if !(hi[a] - lo[a]).is_finite() {
-            return Err(ctx.err(
-                format!("domain.hi[{a}]"),
-                format!("the domain extent along {} must be finite", AXES[a]),
-            ));
-        }
-        if hi[a] <= lo[a] {
-            return Err(ctx.err(
-                format!("domain.hi[{a}]"),
-                format!(
-                    "must be greater than domain.lo[{a}] = {:?} ({} axis), got {:?}",
-                    lo[a], AXES[a], hi[a]
-                ),
-            ));
-        }
-    }
-    let planar = raw.domain.planar;
-    let gravity = match raw.domain.gravity {
-        Some(g) => ctx.vec3("domain.gravity", g)?,
-        None => DVec3::ZERO,
-    };
-    if planar && gravity.z != 0.0 {
-        return Err(ctx.err(
-            "domain.gravity[2]",
-            format!("must be 0 in planar mode, got {:?}", gravity.z),
-        ));
-    }
-    let domain = Domain {
-        lo,
-        hi,
-        planar,
-        gravity,
-    };
+    let domain = validate_domain(ctx, &raw.domain)?;
+    let planar = domain.planar;
     let extent = domain.extent();
 
     // ---- populations
@@ -202,179 +105,14 @@ pub(crate) fn validate(ctx: &Ctx, raw: RawScenario) -> R<Scenario> {
             "particles",
         )?;
         population_index.insert(p.name.clone(), i);
-        let material = find_material(&format!("{path}.material"), &p.material)?;
-        if materials[material as usize].density.is_none() {
-            return Err(ctx.err(
-                format!("{path}.material"),
-                format!(
-                    "material '{}' has no density, so it can only be a wall material; add density to it",
-                    p.material
-                ),
-            ));
-        }
-        let diameter = validate_diameter(ctx, &format!("{path}.diameter"), &p.diameter)?;
-        let d_max = diameter.max();
-        let placement = p.placement.unwrap_or(Placement::Random);
-        let velocity = match p.velocity {
-            Some(v) => ctx.vec3(&format!("{path}.velocity"), v)?,
-            None => DVec3::ZERO,
-        };
-        if planar && velocity.z != 0.0 {
-            return Err(ctx.err(
-                format!("{path}.velocity[2]"),
-                format!("must be 0 in planar mode, got {:?}", velocity.z),
-            ));
-        }
-        let temperature =
-            ctx.non_negative(&format!("{path}.temperature"), p.temperature.unwrap_or(0.0))?;
-
-        // region
-        let region = match &p.region {
-            None => Region { lo, hi },
-            Some(r) => {
-                let rp = format!("{path}.region");
-                let rlo = ctx.vec3(&format!("{rp}.lo"), r.lo)?;
-                let rhi = ctx.vec3(&format!("{rp}.hi"), r.hi)?;
-                for a in 0..3 {
-                    if rlo[a] < lo[a] || rlo[a] > hi[a] {
-                        return Err(ctx.err(
-                            format!("{rp}.lo[{a}]"),
-                            format!(
-                                "must lie inside the domain [{:?}, {:?}] ({} axis), got {:?}",
-                                lo[a], hi[a], AXES[a], rlo[a]
-                            ),
-                        ));
-                    }
-                    if rhi[a] > hi[a] || rhi[a] <= rlo[a] {
-                        return Err(ctx.err(
-                            format!("{rp}.hi[{a}]"),
-                            format!(
-                                "must be in ({:?}, {:?}] (above region.lo, inside the domain; {} axis), got {:?}",
-                                rlo[a], hi[a], AXES[a], rhi[a]
-                            ),
-                        ));
-                    }
-                }
-                Region { lo: rlo, hi: rhi }
-            }
-        };
-        let rext = region.extent();
-        let n_axes = if planar { 2 } else { 3 };
-        for a in 0..n_axes {
-            if rext[a] <= d_max {
-                let what = if p.region.is_some() {
-                    "region"
-                } else {
-                    "domain"
-                };
-                return Err(ctx.err(
-                    if p.region.is_some() {
-                        format!("{path}.region")
-                    } else {
-                        format!("{path}.diameter")
-                    },
-                    format!(
-                        "the {what} extent along {} ({:?}) must exceed the largest diameter {:?}",
-                        AXES[a], rext[a], d_max
-                    ),
-                ));
-            }
-        }
-
-        // amount: count or solids fraction
-        let region_volume = if planar {
-            rext.x * rext.y * extent.z
-        } else {
-            rext.x * rext.y * rext.z
-        };
-        // Fraction that counts against the cap: volume fraction in 3D,
-        // equivalent area fraction in planar mode.
-        let to_capped = |phi: f64| {
-            if planar {
-                phi * extent.z * 1.5 * diameter.moment(2) / diameter.moment(3)
-            } else {
-                phi
-            }
-        };
-        let cap = match (planar, placement) {
-            (false, Placement::Lattice) => CAP_LATTICE_3D,
-            (false, Placement::Random) => CAP_RANDOM_3D,
-            (true, Placement::Lattice) => CAP_LATTICE_2D,
-            (true, Placement::Random) => CAP_RANDOM_2D,
-        };
-        let cap_text = |capped: f64| {
-            if planar {
-                format!(
-                    "the equivalent area fraction {capped:.4} exceeds the cap {cap:.4} for {} placement in planar mode",
-                    placement_name(placement)
-                )
-            } else {
-                format!(
-                    "the solids fraction {capped:.4} exceeds the cap {cap:.4} for {} placement",
-                    placement_name(placement)
-                )
-            }
-        };
-        let (count, solids_fraction) = match (&p.count, p.solids_fraction) {
-            (Some(_), Some(_)) => {
-                return Err(ctx.err(
-                    format!("{path}.solids_fraction"),
-                    "give either count or solids_fraction, not both",
-                ));
-            }
-            (None, None) => {
-                return Err(ctx.err(
-                    format!("{path}.count"),
-                    "required key is missing (give count or solids_fraction)",
-                ));
-            }
-            (Some(c), None) => {
-                let cpath = format!("{path}.count");
-                let n = ctx.uint(&cpath, c)?;
-                if n > MAX_PARTICLES {
-                    return Err(
-                        ctx.err(&cpath, format!("must be at most {MAX_PARTICLES}, got {n}"))
-                    );
-                }
-                let capped = to_capped(n as f64 * diameter.mean_volume() / region_volume);
-                if capped >= cap {
-                    return Err(ctx.err(
-                        &cpath,
-                        format!("{n} particles do not fit: {}", cap_text(capped)),
-                    ));
-                }
-                (n as usize, None)
-            }
-            (None, Some(phi)) => {
-                let fpath = format!("{path}.solids_fraction");
-                let capped = to_capped(phi);
-                if !(phi.is_finite() && phi > 0.0) {
-                    return Err(ctx.err(&fpath, format!("must be > 0 and finite, got {phi:?}")));
-                }
-                if capped >= cap {
-                    return Err(ctx.err(&fpath, cap_text(capped)));
-                }
-                let n = (phi * region_volume / diameter.mean_volume()).round();
-                if n.is_nan() || n > MAX_PARTICLES as f64 {
-                    return Err(ctx.err(
-                        &fpath,
-                        format!("gives {n:e} particles; at most {MAX_PARTICLES} are allowed"),
-                    ));
-                }
-                (n as usize, Some(phi))
-            }
-        };
-        populations.push(Population {
-            name: p.name.clone(),
-            material,
-            count,
-            solids_fraction,
-            diameter,
-            placement,
-            region,
-            velocity,
-            temperature,
-        });
+        populations.push(validate_population(
+            ctx,
+            &path,
+            p,
+            &materials,
+            &material_index,
+            &domain,
+        )?);
     }
     let d_max = populations
         .iter()
@@ -408,7 +146,408 @@ pub(crate) fn validate(ctx: &Ctx, raw: RawScenario) -> R<Scenario> {
     }
 
     // ---- boundaries
-    let rb = raw.boundaries.unwrap_or_default();
+    let boundaries = validate_boundaries(
+        ctx,
+        raw.boundaries.unwrap_or_default(),
+        &domain,
+        &materials,
+        &material_index,
+        &populations,
+        &population_index,
+    )?;
+
+    // ---- collisions
+    let (contacts, collisions) = validate_collisions(
+        ctx,
+        raw.collisions.unwrap_or_default(),
+        &materials,
+        &material_index,
+        boundaries.wall_material,
+    )?;
+
+    // ---- time
+    let time = validate_time(ctx, &raw.time)?;
+
+    // ---- engine
+    let engine = validate_engine(ctx, raw.engine)?;
+
+    // ---- output
+    let output = validate_output(ctx, raw.output.as_ref(), &time, planar)?;
+
+    // ---- gas
+    let gas = match &raw.gas {
+        Some(g) => Some(super::gas::validate_gas(ctx, g, &domain, &boundaries)?),
+        None => None,
+    };
+    if gas.is_some() && time.splitting == Splitting::SecondOrder {
+        return Err(ctx.err(
+            "time.splitting",
+            "must be \"first-order\" with [gas]: drag, pressure-gradient and gravity kicks are applied once per flow step after the gas step".to_string(),
+        ));
+    }
+
+    let mut scenario = Scenario {
+        name: ctx.file.to_string(),
+        source_text: String::new(),
+        overrides: Vec::new(),
+        effective_toml: String::new(),
+        seed,
+        domain,
+        boundaries,
+        materials,
+        contacts,
+        collisions,
+        populations,
+        initial: InitialState { checkpoint },
+        time,
+        engine,
+        output,
+        gas,
+        warnings: Vec::new(),
+    };
+    scenario.warnings = limits::check(ctx, &scenario)?;
+    Ok(scenario)
+}
+
+/// `[[materials]]`: names unique, densities in range; with the index of
+/// each name.
+fn validate_materials(
+    ctx: &Ctx,
+    raw: &[raw::RawMaterial],
+) -> R<(Vec<Material>, HashMap<String, u16>)> {
+    if raw.is_empty() {
+        return Err(ctx.err("materials", "at least one [[materials]] entry is required"));
+    }
+    if raw.len() > u16::MAX as usize {
+        return Err(ctx.err(
+            "materials",
+            format!("at most {} materials, got {}", u16::MAX, raw.len()),
+        ));
+    }
+    let mut materials = Vec::with_capacity(raw.len());
+    let mut material_index: HashMap<String, u16> = HashMap::new();
+    for (i, m) in raw.iter().enumerate() {
+        let path = format!("materials[{i}]");
+        check_unique_name(
+            ctx,
+            &path,
+            &m.name,
+            &material_index,
+            "material",
+            "materials",
+        )?;
+        let density = match m.density {
+            Some(rho) => {
+                let (lo, hi) = limits::DENSITY_RANGE;
+                let p = format!("{path}.density");
+                ctx.positive(&p, rho)?;
+                if !(lo..=hi).contains(&rho) {
+                    return Err(ctx.err(
+                        p,
+                        format!(
+                            "must be in [{lo:?}, {hi:?}] kg/m³ (aerogels are above 0.1, osmium is 22 600), got {rho:?}"
+                        ),
+                    ));
+                }
+                Some(rho)
+            }
+            None => None,
+        };
+        material_index.insert(m.name.clone(), i as u16);
+        materials.push(Material {
+            name: m.name.clone(),
+            density,
+        });
+    }
+    Ok((materials, material_index))
+}
+
+/// The index of material `name` (at `path`), or an error listing the
+/// defined materials.
+fn find_material(
+    ctx: &Ctx,
+    materials: &[Material],
+    index: &HashMap<String, u16>,
+    path: &str,
+    name: &str,
+) -> R<u16> {
+    let material_names = || {
+        materials
+            .iter()
+            .map(|m| format!("'{}'", m.name))
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    index.get(name).copied().ok_or_else(|| {
+        ctx.err(
+            path,
+            format!("unknown material '{name}'; defined: {}", material_names()),
+        )
+    })
+}
+
+/// `[domain]`: a finite box with `hi > lo`; gravity (none out of plane in
+/// planar mode).
+fn validate_domain(ctx: &Ctx, raw: &raw::RawDomain) -> R<Domain> {
+    let lo = ctx.vec3("domain.lo", raw.lo)?;
+    let hi = ctx.vec3("domain.hi", raw.hi)?;
+    for a in 0..3 {
+        if !(hi[a] - lo[a]).is_finite() {
+            return Err(ctx.err(
+                format!("domain.hi[{a}]"),
+                format!("the domain extent along {} must be finite", AXES[a]),
+            ));
+        }
+        if hi[a] <= lo[a] {
+            return Err(ctx.err(
+                format!("domain.hi[{a}]"),
+                format!(
+                    "must be greater than domain.lo[{a}] = {:?} ({} axis), got {:?}",
+                    lo[a], AXES[a], hi[a]
+                ),
+            ));
+        }
+    }
+    let planar = raw.planar;
+    let gravity = match raw.gravity {
+        Some(g) => ctx.vec3("domain.gravity", g)?,
+        None => DVec3::ZERO,
+    };
+    if planar && gravity.z != 0.0 {
+        return Err(ctx.err(
+            "domain.gravity[2]",
+            format!("must be 0 in planar mode, got {:?}", gravity.z),
+        ));
+    }
+    Ok(Domain {
+        lo,
+        hi,
+        planar,
+        gravity,
+    })
+}
+
+/// One `[[particles]]` population at `path` (its name already checked):
+/// material, size distribution, velocity, region and amount against the
+/// packing caps.
+fn validate_population(
+    ctx: &Ctx,
+    path: &str,
+    p: &raw::RawPopulation,
+    materials: &[Material],
+    material_index: &HashMap<String, u16>,
+    domain: &Domain,
+) -> R<Population> {
+    let (lo, hi, planar) = (domain.lo, domain.hi, domain.planar);
+    let material = find_material(
+        ctx,
+        materials,
+        material_index,
+        &format!("{path}.material"),
+        &p.material,
+    )?;
+    if materials[material as usize].density.is_none() {
+        return Err(ctx.err(
+            format!("{path}.material"),
+            format!(
+                "material '{}' has no density, so it can only be a wall material; add density to it",
+                p.material
+            ),
+        ));
+    }
+    let diameter = validate_diameter(ctx, &format!("{path}.diameter"), &p.diameter)?;
+    let d_max = diameter.max();
+    let placement = p.placement.unwrap_or(Placement::Random);
+    let velocity = match p.velocity {
+        Some(v) => ctx.vec3(&format!("{path}.velocity"), v)?,
+        None => DVec3::ZERO,
+    };
+    if planar && velocity.z != 0.0 {
+        return Err(ctx.err(
+            format!("{path}.velocity[2]"),
+            format!("must be 0 in planar mode, got {:?}", velocity.z),
+        ));
+    }
+    let temperature =
+        ctx.non_negative(&format!("{path}.temperature"), p.temperature.unwrap_or(0.0))?;
+
+    // region
+    let region = match &p.region {
+        None => Region { lo, hi },
+        Some(r) => {
+            let rp = format!("{path}.region");
+            let rlo = ctx.vec3(&format!("{rp}.lo"), r.lo)?;
+            let rhi = ctx.vec3(&format!("{rp}.hi"), r.hi)?;
+            for a in 0..3 {
+                if rlo[a] < lo[a] || rlo[a] > hi[a] {
+                    return Err(ctx.err(
+                        format!("{rp}.lo[{a}]"),
+                        format!(
+                            "must lie inside the domain [{:?}, {:?}] ({} axis), got {:?}",
+                            lo[a], hi[a], AXES[a], rlo[a]
+                        ),
+                    ));
+                }
+                if rhi[a] > hi[a] || rhi[a] <= rlo[a] {
+                    return Err(ctx.err(
+                        format!("{rp}.hi[{a}]"),
+                        format!(
+                            "must be in ({:?}, {:?}] (above region.lo, inside the domain; {} axis), got {:?}",
+                            rlo[a], hi[a], AXES[a], rhi[a]
+                        ),
+                    ));
+                }
+            }
+            Region { lo: rlo, hi: rhi }
+        }
+    };
+    let rext = region.extent();
+    let n_axes = if planar { 2 } else { 3 };
+    for a in 0..n_axes {
+        if rext[a] <= d_max {
+            let what = if p.region.is_some() {
+                "region"
+            } else {
+                "domain"
+            };
+            return Err(ctx.err(
+                if p.region.is_some() {
+                    format!("{path}.region")
+                } else {
+                    format!("{path}.diameter")
+                },
+                format!(
+                    "the {what} extent along {} ({:?}) must exceed the largest diameter {:?}",
+                    AXES[a], rext[a], d_max
+                ),
+            ));
+        }
+    }
+
+    let (count, solids_fraction) =
+        population_amount(ctx, path, p, &diameter, placement, &region, domain)?;
+    Ok(Population {
+        name: p.name.clone(),
+        material,
+        count,
+        solids_fraction,
+        diameter,
+        placement,
+        region,
+        velocity,
+        temperature,
+    })
+}
+
+/// How many particles of population `p` (at `path`): its `count`, or its
+/// `solids_fraction` of the region, below the packing cap of its placement;
+/// with the solids fraction when given.
+fn population_amount(
+    ctx: &Ctx,
+    path: &str,
+    p: &raw::RawPopulation,
+    diameter: &Diameter,
+    placement: Placement,
+    region: &Region,
+    domain: &Domain,
+) -> R<(usize, Option<f64>)> {
+    let (planar, extent) = (domain.planar, domain.extent());
+    let rext = region.extent();
+    let region_volume = if planar {
+        rext.x * rext.y * extent.z
+    } else {
+        rext.x * rext.y * rext.z
+    };
+    // Fraction that counts against the cap: volume fraction in 3D,
+    // equivalent area fraction in planar mode.
+    let to_capped = |phi: f64| {
+        if planar {
+            phi * extent.z * 1.5 * diameter.moment(2) / diameter.moment(3)
+        } else {
+            phi
+        }
+    };
+    let cap = match (planar, placement) {
+        (false, Placement::Lattice) => CAP_LATTICE_3D,
+        (false, Placement::Random) => CAP_RANDOM_3D,
+        (true, Placement::Lattice) => CAP_LATTICE_2D,
+        (true, Placement::Random) => CAP_RANDOM_2D,
+    };
+    let cap_text = |capped: f64| {
+        if planar {
+            format!(
+                "the equivalent area fraction {capped:.4} exceeds the cap {cap:.4} for {} placement in planar mode",
+                placement_name(placement)
+            )
+        } else {
+            format!(
+                "the solids fraction {capped:.4} exceeds the cap {cap:.4} for {} placement",
+                placement_name(placement)
+            )
+        }
+    };
+    Ok(match (&p.count, p.solids_fraction) {
+        (Some(_), Some(_)) => {
+            return Err(ctx.err(
+                format!("{path}.solids_fraction"),
+                "give either count or solids_fraction, not both",
+            ));
+        }
+        (None, None) => {
+            return Err(ctx.err(
+                format!("{path}.count"),
+                "required key is missing (give count or solids_fraction)",
+            ));
+        }
+        (Some(c), None) => {
+            let cpath = format!("{path}.count");
+            let n = ctx.uint(&cpath, c)?;
+            if n > MAX_PARTICLES {
+                return Err(ctx.err(&cpath, format!("must be at most {MAX_PARTICLES}, got {n}")));
+            }
+            let capped = to_capped(n as f64 * diameter.mean_volume() / region_volume);
+            if capped >= cap {
+                return Err(ctx.err(
+                    &cpath,
+                    format!("{n} particles do not fit: {}", cap_text(capped)),
+                ));
+            }
+            (n as usize, None)
+        }
+        (None, Some(phi)) => {
+            let fpath = format!("{path}.solids_fraction");
+            let capped = to_capped(phi);
+            if !(phi.is_finite() && phi > 0.0) {
+                return Err(ctx.err(&fpath, format!("must be > 0 and finite, got {phi:?}")));
+            }
+            if capped >= cap {
+                return Err(ctx.err(&fpath, cap_text(capped)));
+            }
+            let n = (phi * region_volume / diameter.mean_volume()).round();
+            if n.is_nan() || n > MAX_PARTICLES as f64 {
+                return Err(ctx.err(
+                    &fpath,
+                    format!("gives {n:e} particles; at most {MAX_PARTICLES} are allowed"),
+                ));
+            }
+            (n as usize, Some(phi))
+        }
+    })
+}
+
+/// `[boundaries]`: per-axis walls or periodic (periodic axes at least three
+/// largest diameters `d_max` long), wall material, outlet and inlet.
+fn validate_boundaries(
+    ctx: &Ctx,
+    rb: raw::RawBoundaries,
+    domain: &Domain,
+    materials: &[Material],
+    material_index: &HashMap<String, u16>,
+    populations: &[Population],
+    population_index: &HashMap<String, usize>,
+) -> R<Boundaries> {
+    let (planar, extent) = (domain.planar, domain.extent());
+    let d_max = largest_diameter(populations);
     let raw_axes = [rb.x, rb.y, rb.z];
     let mut axes = [AxisBoundary::Walls; 3];
     for a in 0..3 {
@@ -441,7 +580,13 @@ pub(crate) fn validate(ctx: &Ctx, raw: RawScenario) -> R<Scenario> {
     }
     let any_walls = axes.contains(&AxisBoundary::Walls);
     let wall_material = match &rb.wall_material {
-        Some(name) => Some(find_material("boundaries.wall_material", name)?),
+        Some(name) => Some(find_material(
+            ctx,
+            materials,
+            material_index,
+            "boundaries.wall_material",
+            name,
+        )?),
         None if any_walls => {
             let a = axes
                 .iter()
@@ -483,7 +628,35 @@ pub(crate) fn validate(ctx: &Ctx, raw: RawScenario) -> R<Scenario> {
             Some(Outlet { axis, mode: o.mode })
         }
     };
-    let inlet = match (&rb.inlet, outlet) {
+    let inlet = validate_inlet(
+        ctx,
+        rb.inlet.as_ref(),
+        outlet,
+        domain,
+        populations,
+        population_index,
+    )?;
+    Ok(Boundaries {
+        axes,
+        wall_material: if any_walls { wall_material } else { None },
+        outlet,
+        inlet,
+    })
+}
+
+/// `[boundaries.inlet]`: the feed of a `remove` outlet (solids flux,
+/// population) or the entry zone of a `reinsert` outlet.
+fn validate_inlet(
+    ctx: &Ctx,
+    raw: Option<&raw::RawInlet>,
+    outlet: Option<Outlet>,
+    domain: &Domain,
+    populations: &[Population],
+    population_index: &HashMap<String, usize>,
+) -> R<Option<Inlet>> {
+    let (planar, extent) = (domain.planar, domain.extent());
+    let d_max = largest_diameter(populations);
+    Ok(match (raw, outlet) {
         (None, Some(o)) if o.mode == OutletMode::Reinsert => {
             return Err(ctx.err(
                 "boundaries.outlet.mode",
@@ -592,16 +765,27 @@ pub(crate) fn validate(ctx: &Ctx, raw: RawScenario) -> R<Scenario> {
                 population,
             })
         }
-    };
-    let boundaries = Boundaries {
-        axes,
-        wall_material: if any_walls { wall_material } else { None },
-        outlet,
-        inlet,
-    };
+    })
+}
 
-    // ---- collisions
-    let rc = raw.collisions.unwrap_or_default();
+/// The largest diameter of any population (m).
+fn largest_diameter(populations: &[Population]) -> f64 {
+    populations
+        .iter()
+        .map(|p| p.diameter.max())
+        .fold(0.0, f64::max)
+}
+
+/// `[collisions]`: the contact parameters of every pair of materials that
+/// can meet (particles with particles and with `wall_material`), TC and the
+/// collapse guard.
+fn validate_collisions(
+    ctx: &Ctx,
+    rc: raw::RawCollisions,
+    materials: &[Material],
+    material_index: &HashMap<String, u16>,
+    wall_material: Option<u16>,
+) -> R<(ContactTable, CollisionSettings)> {
     let contact = |path: &str, e_n: f64, beta_0: f64, mu: f64| -> R<ContactParams> {
         Ok(ContactParams {
             e_n: ctx.closed(&format!("{path}.e_n"), e_n, 0.0, 1.0)?,
@@ -621,8 +805,20 @@ pub(crate) fn validate(ctx: &Ctx, raw: RawScenario) -> R<Scenario> {
     let mut seen_pairs: HashMap<(u16, u16), usize> = HashMap::new();
     for (i, pr) in rc.pairs.iter().enumerate() {
         let path = format!("collisions.pairs[{i}]");
-        let a = find_material(&format!("{path}.materials[0]"), &pr.materials[0])?;
-        let b = find_material(&format!("{path}.materials[1]"), &pr.materials[1])?;
+        let a = find_material(
+            ctx,
+            materials,
+            material_index,
+            &format!("{path}.materials[0]"),
+            &pr.materials[0],
+        )?;
+        let b = find_material(
+            ctx,
+            materials,
+            material_index,
+            &format!("{path}.materials[1]"),
+            &pr.materials[1],
+        )?;
         let key = (a.min(b), a.max(b));
         if let Some(j) = seen_pairs.insert(key, i) {
             return Err(ctx.err(
@@ -654,7 +850,7 @@ pub(crate) fn validate(ctx: &Ctx, raw: RawScenario) -> R<Scenario> {
                 return Err(missing(a, b, "particle-particle"));
             }
         }
-        if let Some(w) = boundaries.wall_material
+        if let Some(w) = wall_material
             && contacts.get(a, w).is_none()
         {
             return Err(missing(a, w, "particle-wall"));
@@ -671,24 +867,35 @@ pub(crate) fn validate(ctx: &Ctx, raw: RawScenario) -> R<Scenario> {
         }
         None => DEFAULT_MAX_COLLISIONS_PER_STEP,
     };
+    Ok((
+        contacts,
+        CollisionSettings {
+            tc,
+            max_collisions_per_step,
+        },
+    ))
+}
 
-    // ---- time
-    let t_end = ctx.positive("time.t_end", raw.time.t_end)?;
-    let dt_flow = raw.time.dt_flow;
+/// `[time]`: `0 < dt_flow <= t_end`.
+fn validate_time(ctx: &Ctx, raw: &raw::RawTime) -> R<TimeSettings> {
+    let t_end = ctx.positive("time.t_end", raw.t_end)?;
+    let dt_flow = raw.dt_flow;
     if !(dt_flow.is_finite() && dt_flow > 0.0 && dt_flow <= t_end) {
         return Err(ctx.err(
             "time.dt_flow",
             format!("must be in (0, t_end = {t_end:?}], got {dt_flow:?}"),
         ));
     }
-    let time = TimeSettings {
+    Ok(TimeSettings {
         t_end,
         dt_flow,
-        splitting: raw.time.splitting.unwrap_or(Splitting::FirstOrder),
-    };
+        splitting: raw.splitting.unwrap_or(Splitting::FirstOrder),
+    })
+}
 
-    // ---- engine
-    let (queue, skin, neighbours) = match raw.engine {
+/// `[engine]`: queue, neighbour search and skin.
+fn validate_engine(ctx: &Ctx, raw: Option<raw::RawEngine>) -> R<EngineSettings> {
+    let (queue, skin, neighbours) = match raw {
         Some(e) => (e.queue, e.skin, e.neighbours),
         None => (None, None, None),
     };
@@ -696,14 +903,23 @@ pub(crate) fn validate(ctx: &Ctx, raw: RawScenario) -> R<Scenario> {
     if !(skin > 0.0 && skin <= 2.0) {
         return Err(ctx.err("engine.skin", format!("must be in (0, 2], got {skin:?}")));
     }
-    let engine = EngineSettings {
+    Ok(EngineSettings {
         queue: queue.unwrap_or(crate::queue::QueueKind::Calendar),
         skin,
         neighbours: neighbours.unwrap_or(NeighbourChoice::Auto),
-    };
+    })
+}
 
-    // ---- output
-    let (sample_interval, vtk_interval, snapshot_interval, tally_cells) = match &raw.output {
+/// `[output]`: sample and snapshot intervals (at least one flow step, a
+/// bounded number per run) and the tally grid.
+fn validate_output(
+    ctx: &Ctx,
+    raw: Option<&raw::RawOutput>,
+    time: &TimeSettings,
+    planar: bool,
+) -> R<OutputSettings> {
+    let (t_end, dt_flow) = (time.t_end, time.dt_flow);
+    let (sample_interval, vtk_interval, snapshot_interval, tally_cells) = match raw {
         Some(o) => (
             o.sample_interval,
             o.vtk_interval,
@@ -753,7 +969,7 @@ pub(crate) fn validate(ctx: &Ctx, raw: RawScenario) -> R<Scenario> {
                 }
                 n[a] = k as usize;
             }
-            if domain.planar && n[2] != 1 {
+            if planar && n[2] != 1 {
                 return Err(ctx.err(
                     "output.tally_cells[2]",
                     format!("must be 1 in planar mode, got {}", n[2]),
@@ -763,48 +979,12 @@ pub(crate) fn validate(ctx: &Ctx, raw: RawScenario) -> R<Scenario> {
         }
         None => None,
     };
-
-    // ---- gas
-    let gas = match &raw.gas {
-        Some(g) => Some(super::gas::validate_gas(ctx, g, &domain, &boundaries)?),
-        None => None,
-    };
-    if gas.is_some() && time.splitting == Splitting::SecondOrder {
-        return Err(ctx.err(
-            "time.splitting",
-            "must be \"first-order\" with [gas]: drag, pressure-gradient and gravity kicks are applied once per flow step after the gas step".to_string(),
-        ));
-    }
-
-    let mut scenario = Scenario {
-        name: ctx.file.to_string(),
-        source_text: String::new(),
-        overrides: Vec::new(),
-        effective_toml: String::new(),
-        seed,
-        domain,
-        boundaries,
-        materials,
-        contacts,
-        collisions: CollisionSettings {
-            tc,
-            max_collisions_per_step,
-        },
-        populations,
-        initial: InitialState { checkpoint },
-        time,
-        engine,
-        output: OutputSettings {
-            sample_interval,
-            vtk_interval,
-            snapshot_interval,
-            tally_cells,
-        },
-        gas,
-        warnings: Vec::new(),
-    };
-    scenario.warnings = limits::check(ctx, &scenario)?;
-    Ok(scenario)
+    Ok(OutputSettings {
+        sample_interval,
+        vtk_interval,
+        snapshot_interval,
+        tally_cells,
+    })
 }
 
 fn placement_name(p: Placement) -> &'static str {
