@@ -64,6 +64,7 @@ impl<Q: EventQueue> Engine<Q> {
     }
 
     /// Takes particle i out of the simulation and returns it.
+    #[inline]
     pub(super) fn remove(&mut self, i: usize) -> NewParticle {
         self.sync(i);
         self.queue.remove(i as u32);
@@ -95,6 +96,7 @@ impl<Q: EventQueue> Engine<Q> {
         }
     }
 
+    #[inline]
     pub(super) fn leave_through_outlet(&mut self, i: usize) {
         let p = self.remove(i);
         let reinsert = matches!(self.domain.outlet, Some(o) if o.mode == OutletMode::Reinsert);
@@ -111,6 +113,7 @@ impl<Q: EventQueue> Engine<Q> {
         }
     }
 
+    #[inline]
     pub(super) fn retry_pending_reinsertions(&mut self) {
         let pending = std::mem::take(&mut self.pending_reinsert);
         for p in pending {

@@ -50,6 +50,7 @@ impl<Q: EventQueue> Engine<Q> {
     /// elastic, the loss the nominal parameters would have given minus
     /// `dissipated`; also adds the alteration to the counters. `a`, `b` are
     /// the bodies before the collision (`Body::WALL` for a wall).
+    #[inline]
     pub(super) fn account_losses(
         &mut self,
         n: DVec3,
@@ -87,6 +88,7 @@ impl<Q: EventQueue> Engine<Q> {
         (0.0, undissipated)
     }
 
+    #[inline]
     pub(super) fn note_collision(&mut self, i: usize, partner: u32) {
         self.counter[i] = self.counter[i].wrapping_add(1);
         self.last_collision[i] = self.now;
@@ -94,6 +96,7 @@ impl<Q: EventQueue> Engine<Q> {
         self.step_collisions[i] = self.step_collisions[i].saturating_add(1);
     }
 
+    #[inline]
     pub(super) fn collide_pair(&mut self, i: usize, j: usize, code: u32) {
         self.sync(i);
         self.sync(j);
@@ -167,6 +170,7 @@ impl<Q: EventQueue> Engine<Q> {
         self.predict(j);
     }
 
+    #[inline]
     pub(super) fn collide_wall(&mut self, i: usize, face: Face) {
         self.sync(i);
         let axis = (face / 2) as usize;

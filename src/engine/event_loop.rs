@@ -70,6 +70,7 @@ impl<Q: EventQueue> Engine<Q> {
         self.stall.as_ref()
     }
 
+    #[inline]
     pub(super) fn stall_report(
         &self,
         events: u64,
@@ -131,6 +132,7 @@ impl<Q: EventQueue> Engine<Q> {
         None
     }
 
+    #[inline]
     pub(super) fn ensure_predicted(&mut self) {
         if self.needs_prediction {
             self.predict_all();
@@ -174,6 +176,7 @@ impl<Q: EventQueue> Engine<Q> {
     }
 
     /// Re-predicts every particle from scratch.
+    #[inline]
     pub(super) fn predict_all(&mut self) {
         self.queue.clear();
         for i in 0..self.kin.len() {
@@ -188,6 +191,7 @@ impl<Q: EventQueue> Engine<Q> {
     /// particle's stored state is not changed: its position now is
     /// extrapolated, so only collisions, wraps and flow-step ends ever
     /// rewrite positions (which keeps event logs replayable bit for bit).
+    #[inline]
     pub(super) fn predict(&mut self, i: usize) {
         let mut ki = self.kin[i];
         ki.pos = ki.position_at(self.now);
@@ -280,6 +284,7 @@ impl<Q: EventQueue> Engine<Q> {
         self.queue.set(i as u32, now + best);
     }
 
+    #[inline]
     pub(super) fn process(&mut self, i: usize) {
         let event = self.scheduled[i];
         match event.kind {

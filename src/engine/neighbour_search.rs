@@ -12,6 +12,7 @@ use crate::queue::EventQueue;
 
 impl<Q: EventQueue> Engine<Q> {
     /// Puts a new particle into the neighbour structure.
+    #[inline]
     pub(super) fn enter_grid(&mut self, i: usize) {
         match self.config.neighbours {
             NeighbourSearch::Lists => self.rebuild_list(i),
@@ -24,6 +25,7 @@ impl<Q: EventQueue> Engine<Q> {
 
     /// Cells mode: records particle i in cell `c` and which domain faces
     /// that cell touches.
+    #[inline]
     pub(super) fn move_to_cell(&mut self, i: usize, c: [usize; 3]) {
         self.cell_of[i] = c;
         self.cells
@@ -47,6 +49,7 @@ impl<Q: EventQueue> Engine<Q> {
     /// Cells mode: delay until particle i's centre leaves its cell, and the
     /// face it leaves through. Domain faces that are walls or the outlet
     /// are not cell faces (their own events handle them).
+    #[inline]
     pub(super) fn cell_exit(&self, pos: DVec3, vel: DVec3, c: [usize; 3]) -> (f64, Scheduled) {
         let dims = self.cells.dims();
         let lo = self.cells.cell_lo(c);
@@ -79,6 +82,7 @@ impl<Q: EventQueue> Engine<Q> {
 
     /// Cells mode: moves particle i through `face` of its cell into the
     /// next one, wrapping around periodic axes.
+    #[inline]
     pub(super) fn cross_cell(&mut self, i: usize, face: Face) {
         let axis = (face / 2) as usize;
         let n = self.cells.dims()[axis];
@@ -110,6 +114,7 @@ impl<Q: EventQueue> Engine<Q> {
     }
 
     /// Moves a synchronised particle to its periodic image `pos`.
+    #[inline]
     pub(super) fn set_wrapped_position(&mut self, i: usize, pos: DVec3) {
         self.kin[i].pos = pos;
         // Others' predictions hold image codes relative to the old
@@ -128,6 +133,7 @@ impl<Q: EventQueue> Engine<Q> {
     /// Rebuilds particle i's shell around its current position: wraps it
     /// into the box, drops it from its old neighbours' lists and links it
     /// with every particle whose shell overlaps the new one.
+    #[inline]
     pub(super) fn rebuild_list(&mut self, i: usize) {
         let pos = self.kin[i].position_at(self.now);
         let centre = self.domain.wrap(pos);

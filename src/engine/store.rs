@@ -160,6 +160,7 @@ impl<Q: EventQueue> Engine<Q> {
         k.time = self.now;
     }
 
+    #[inline]
     pub(super) fn state(&self, i: usize) -> State {
         State {
             pos: self.kin[i].pos,
@@ -168,6 +169,7 @@ impl<Q: EventQueue> Engine<Q> {
         }
     }
 
+    #[inline]
     pub(super) fn body(&self, i: usize) -> Body {
         Body {
             vel: self.kin[i].vel,
