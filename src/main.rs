@@ -230,6 +230,8 @@ impl From<QueueArg> for QueueKind {
     }
 }
 
+/// Long function: one match arm per subcommand, each only turning the
+/// command line into the library's options (about 150 lines).
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {

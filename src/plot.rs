@@ -1002,6 +1002,9 @@ fn plot_xy(path: &Path, fig: &XyFigure, layers: &[Layer]) -> anyhow::Result<()> 
     render_png(path, layout.size, |buf| draw_xy(buf, fig, &layout, layers))
 }
 
+/// Long function: one figure drawn in painter's order (geometry per layer,
+/// axes and ticks, series, legend, frame), about 160 lines; not split in
+/// the issue-10 refactor.
 fn draw_xy(
     buf: &mut [u8],
     fig: &XyFigure,

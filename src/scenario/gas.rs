@@ -93,6 +93,10 @@ fn forbid<T>(ctx: &Ctx, path: &str, value: Option<T>, why: &str) -> R<()> {
 }
 
 /// Resolves `[gas]` against the validated domain and particle boundaries.
+/// Long function: about 400 lines, one section per part of `[gas]` in file
+/// order (equation of state, grid, closures, initial state and solver,
+/// faces, jets, outflow), each a few independent checks; to be split per
+/// section like `validate::validate` (issue 10 follow-up).
 pub(super) fn validate_gas(
     ctx: &Ctx,
     raw: &RawGas,
