@@ -9,7 +9,7 @@
 //! re-predicted, as in a coupled gas–particle run.
 //!
 //! By default the bench chooses its neighbour search with the rule of
-//! `edpm run`'s `auto` ([`crate::run::auto_neighbour_search`]), and reports
+//! `edpm run`'s `auto` ([`crate::engine::auto_neighbour_search`]), and reports
 //! the bond-orientational solid fraction of the final state, so that a
 //! crystal is never mistaken for the fluid.
 
@@ -21,11 +21,10 @@ use rand_xoshiro::Xoshiro256PlusPlus;
 
 use crate::collision::ContactParams;
 use crate::domain::{AxisBoundary, Domain};
-use crate::engine::{Engine, EngineConfig, NeighbourSearch};
+use crate::engine::{Engine, EngineConfig, NeighbourSearch, auto_neighbour_search};
 use crate::materials::MaterialTable;
 use crate::particles::NewParticle;
 use crate::queue::{CalendarQueue, EventQueue, IndexedHeap, QueueKind, ReferenceQueue};
-use crate::run::auto_neighbour_search;
 
 /// Benchmark settings.
 #[derive(Clone, Debug, PartialEq)]
@@ -44,7 +43,7 @@ pub struct BenchOptions {
     /// Neighbour-shell thickness δ in diameters (lists only).
     pub skin: f64,
     pub queue: QueueKind,
-    /// `None`: chosen by [`crate::run::auto_neighbour_search`].
+    /// `None`: chosen by [`crate::engine::auto_neighbour_search`].
     pub neighbours: Option<NeighbourSearch>,
     pub start: Start,
     /// Renumber particles in cell order every this many collisions per

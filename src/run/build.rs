@@ -8,7 +8,7 @@ use rand_xoshiro::Xoshiro256PlusPlus;
 
 use crate::collision::ContactParams;
 use crate::domain::Domain;
-use crate::engine::{Engine, EngineConfig, InletZone, NeighbourSearch};
+use crate::engine::{Engine, EngineConfig, InletZone, NeighbourSearch, auto_neighbour_search};
 use crate::io::output::Checkpoint;
 use crate::materials::MaterialTable;
 use crate::particles::NewParticle;
@@ -116,24 +116,5 @@ fn neighbour_search(s: &Scenario, particles: &[NewParticle], r_max: f64) -> Neig
                 cells_fit,
             )
         }
-    }
-}
-
-/// The `auto` neighbour search, shared by `edpm run` and `edpm bench`:
-/// cells when the solids fraction is below 0.2 without gravity, or below
-/// 0.02 with gravity (which gathers dilute particles into dense beds, where
-/// lists are 2x faster: measured on scenarios/box-walls.toml), and every
-/// periodic axis spans at least three cells of one largest diameter
-/// (`cells_fit`); lists otherwise. See results/benchmarks.md.
-pub fn auto_neighbour_search(
-    solids_fraction: f64,
-    gravity: bool,
-    cells_fit: bool,
-) -> NeighbourSearch {
-    let threshold = if gravity { 0.02 } else { 0.2 };
-    if solids_fraction < threshold && cells_fit {
-        NeighbourSearch::Cells
-    } else {
-        NeighbourSearch::Lists
     }
 }

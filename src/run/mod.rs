@@ -24,7 +24,9 @@ use std::time::Instant;
 use anyhow::Context;
 use glam::DVec3;
 
-pub use build::{auto_neighbour_search, build_engine, engine_domain, material_table};
+pub use crate::engine::auto_neighbour_search;
+pub use crate::scenario::flow_steps;
+pub use build::{build_engine, engine_domain, material_table};
 use feeder::InletFeeder;
 use recorders::{Recorder, RunEnd, StepEnd};
 
@@ -222,11 +224,6 @@ pub fn run_scenario_with(
         QueueKind::Calendar => simulate::<CalendarQueue>(s, out_dir, opts),
         QueueKind::Reference => simulate::<ReferenceQueue>(s, out_dir, opts),
     }
-}
-
-/// Number of flow steps to reach `t_end` (the last one may be shorter).
-pub fn flow_steps(t_end: f64, dt_flow: f64) -> u64 {
-    (t_end / dt_flow - 1e-9).ceil().max(1.0) as u64
 }
 
 /// The length of every flow step of a run: `steps` steps of `dt_flow`, the

@@ -424,6 +424,11 @@ impl crate::gas::flow::GasSource for Scenario {
     }
 }
 
+/// Number of flow steps to reach `t_end` (the last one may be shorter).
+pub fn flow_steps(t_end: f64, dt_flow: f64) -> u64 {
+    (t_end / dt_flow - 1e-9).ceil().max(1.0) as u64
+}
+
 impl Scenario {
     /// Reads and validates a scenario file.
     pub fn from_file(path: impl AsRef<Path>) -> Result<Scenario, ScenarioError> {

@@ -168,7 +168,7 @@ pub fn resolved_toml(s: &Scenario) -> String {
     w.key("splitting", quote(splitting), "");
     w.comment(&format!(
         "derived: {} flow steps",
-        crate::run::flow_steps(s.time.t_end, s.time.dt_flow)
+        super::flow_steps(s.time.t_end, s.time.dt_flow)
     ));
 
     // ---- engine
@@ -407,7 +407,7 @@ fn expected_neighbours(s: &Scenario) -> String {
     let extent = s.domain.extent();
     let cells_fit = (0..3).all(|a| !s.boundaries.is_periodic(a) || extent[a] >= 3.0 * d_max);
     let gravity = s.domain.gravity != DVec3::ZERO;
-    let choice = match crate::run::auto_neighbour_search(fraction, gravity, cells_fit) {
+    let choice = match crate::engine::auto_neighbour_search(fraction, gravity, cells_fit) {
         NeighbourSearch::Cells => "cells",
         NeighbourSearch::Lists => "lists",
     };
