@@ -619,7 +619,8 @@ fn damaged_or_unsuitable_checkpoints_are_refused() {
 
 /// An inlet flux the zone cannot take was fed at whatever rate fitted, with
 /// exit 0 and no word. A flux above a zone filled densely every flow step
-/// is refused; one the zone takes on paper but the inserted particles do
+/// is refused, and so is a 3D-equivalent feed denser than a conveyed
+/// suspension; one the zone takes on paper but the inserted particles do
 /// not clear (they are not carried away fast enough) finishes with a
 /// warning in summary.json and on stderr that gives the delivered share.
 #[test]
@@ -633,6 +634,19 @@ fn an_inlet_flux_the_zone_cannot_deliver_is_refused_or_reported() {
             "zone_height",
         ],
     );
+    // The shipped riser feeds on the 3D-equivalent basis: its 3D solids
+    // fraction G/(rho_p v_ref) must describe a conveyed suspension.
+    let err = scenario_error("riser-ideal.toml", &["boundaries.inlet.solids_flux=20000"]);
+    assert_contains(
+        &err,
+        &[
+            "boundaries.inlet.solids_flux",
+            "3D solids fraction",
+            "must be at most 0.3",
+        ],
+    );
+    // A feed the zone takes on paper but cannot clear: particles inserted
+    // at rest in a thin zone.
     let dir = fresh_dir("inlet-congested");
     let o = run(
         "scenarios/riser-ideal.toml",
@@ -641,7 +655,11 @@ fn an_inlet_flux_the_zone_cannot_deliver_is_refused_or_reported() {
             "--t-end",
             "0.01",
             "--set",
-            "boundaries.inlet.solids_flux=20000",
+            "boundaries.inlet.solids_flux=900",
+            "--set",
+            "boundaries.inlet.zone_height=0.001",
+            "--set",
+            "boundaries.inlet.velocity=[0,0,0]",
         ],
     );
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));

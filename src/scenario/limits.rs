@@ -9,7 +9,7 @@ use std::f64::consts::PI;
 use glam::DVec3;
 
 use super::ctx::Ctx;
-use super::{AxisBoundary, Scenario, ScenarioError};
+use super::{AxisBoundary, FluxBasis, Scenario, ScenarioError};
 use crate::gas::mapping::{MAX_SPAN, mapping_side};
 use crate::gas::{GasConfig, GasFace, PorosityMapping, PressureSolverKind};
 use crate::particles::NewParticle;
@@ -45,6 +45,9 @@ pub const MAX_INFLOW_COURANT: f64 = 1.0;
 pub const DENSITY_RANGE: (f64, f64) = (0.1, 1e5);
 /// Solids fraction of a dense random packing, for memory bounds.
 const DENSE_PACKING: f64 = 0.64;
+/// Largest 3D solids fraction of a `"3d-equivalent"` riser feed: a conveyed
+/// suspension, well below random close packing.
+const MAX_RISER_FEED_FRACTION: f64 = 0.3;
 /// Bytes per particle besides its neighbour list: engine arrays, event
 /// queue, cell entry, and the copies made for output files (checkpoint,
 /// CSV text, snapshots) at the end of a run; rounded up.
@@ -376,6 +379,19 @@ pub(super) fn check(ctx: &Ctx, s: &Scenario) -> R<Vec<String>> {
         let axis = s.boundaries.outlet.map_or(1, |o| o.axis);
         let e = s.domain.extent();
         let zone_volume = e.x * e.y * e.z / e[axis] * inlet.zone_height;
+        if let (FluxBasis::ThreeDEquivalent { reference_velocity }, Some(flux)) =
+            (inlet.flux_basis, inlet.solids_flux)
+        {
+            let fraction = flux / (density * reference_velocity);
+            if !(fraction <= MAX_RISER_FEED_FRACTION) {
+                return Err(ctx.err(
+                    "boundaries.inlet.solids_flux",
+                    format!(
+                        "with flux_basis = \"3d-equivalent\" the feed's 3D solids fraction G/(rho_p v_ref) = {flux:?}/({density:?} x {reference_velocity:?}) = {fraction:.3e} must be at most {MAX_RISER_FEED_FRACTION} (a conveyed suspension; above it Hoomans' conversion has no meaning); lower the flux or raise boundaries.inlet.reference_velocity"
+                    ),
+                ));
+            }
+        }
         let capacity = DENSE_PACKING * density * zone_volume / dt;
         if rate > capacity {
             return Err(ctx.err(
