@@ -383,7 +383,7 @@ pub(super) fn check(ctx: &Ctx, s: &Scenario) -> R<Vec<String>> {
             (inlet.flux_basis, inlet.solids_flux)
         {
             let fraction = flux / (density * reference_velocity);
-            if !(fraction <= MAX_RISER_FEED_FRACTION) {
+            if fraction.is_nan() || fraction > MAX_RISER_FEED_FRACTION {
                 return Err(ctx.err(
                     "boundaries.inlet.solids_flux",
                     format!(
