@@ -14,7 +14,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 
 use anyhow::{Context, bail};
 
-use crate::io::output::write_atomic;
+use crate::io::output::{CsvColumns, write_atomic};
 use crate::scenario::Scenario;
 
 /// What `edpm sweep` runs and tabulates.
@@ -110,23 +110,16 @@ fn grid(axes: &[Axis]) -> Vec<Vec<String>> {
 /// A value of one column for one point (`None`: missing or not a number).
 fn column_value(dir: &Path, summary: &serde_json::Value, column: &str, after: f64) -> Option<f64> {
     if let Some((file, name)) = column.split_once(':') {
-        let text = std::fs::read_to_string(dir.join(file)).ok()?;
-        let mut lines = text.lines();
-        let header: Vec<&str> = lines.next()?.split(',').collect();
-        let (t, c) = (
-            header.iter().position(|h| *h == "time_s")?,
-            header.iter().position(|h| *h == name)?,
-        );
-        let (mut sum, mut n) = (0.0, 0.0);
-        for line in lines {
-            let row: Vec<&str> = line.split(',').collect();
-            let time: f64 = row.get(t)?.parse().ok()?;
-            if time >= after {
-                sum += row.get(c)?.parse::<f64>().ok()?;
-                n += 1.0;
-            }
-        }
-        return (n > 0.0).then(|| sum / n);
+        let table = CsvColumns::read(&dir.join(file)).ok()?;
+        let (t, c) = (table.column("time_s")?, table.column(name)?);
+        let values: Vec<f64> = table
+            .rows
+            .iter()
+            .filter(|r| r.get(t).is_some_and(|&time| time >= after))
+            .filter_map(|r| r.get(c).copied())
+            .collect();
+        let mean = values.iter().sum::<f64>() / values.len() as f64;
+        return mean.is_finite().then_some(mean);
     }
     column
         .split('.')

@@ -12,37 +12,10 @@ use crate::io::snapshot::Snapshot;
 use crate::plot::{self, ParticlePanel, Series};
 
 /// A CSV table of numbers with a header.
-pub(super) struct Table {
-    header: Vec<String>,
-    pub(super) rows: Vec<Vec<f64>>,
-}
+/// The numeric CSV reader of `io`, with the plotting helpers below.
+pub(super) use crate::io::output::CsvColumns as Table;
 
 impl Table {
-    pub(super) fn read(path: &Path) -> anyhow::Result<Table> {
-        let text =
-            std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-        let mut lines = text.lines();
-        let header = lines
-            .next()
-            .unwrap_or_default()
-            .split(',')
-            .map(str::to_string)
-            .collect();
-        let rows = lines
-            .filter(|l| !l.trim().is_empty())
-            .map(|l| {
-                l.split(',')
-                    .map(|x| x.parse().unwrap_or(f64::NAN))
-                    .collect()
-            })
-            .collect();
-        Ok(Table { header, rows })
-    }
-
-    pub(super) fn column(&self, name: &str) -> Option<usize> {
-        self.header.iter().position(|h| h == name)
-    }
-
     fn series(&self, x: usize, y: usize, label: &str) -> Series {
         Series::new(
             label,

@@ -54,6 +54,42 @@ impl CsvTable {
     }
 }
 
+/// A numeric CSV file read back: its header and rows (cells that are not
+/// numbers read as NaN).
+#[derive(Clone, Debug, Default)]
+pub struct CsvColumns {
+    pub header: Vec<String>,
+    pub rows: Vec<Vec<f64>>,
+}
+
+impl CsvColumns {
+    pub fn read(path: &Path) -> anyhow::Result<CsvColumns> {
+        let text =
+            std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+        let mut lines = text.lines();
+        let header = lines
+            .next()
+            .unwrap_or_default()
+            .split(',')
+            .map(str::to_string)
+            .collect();
+        let rows = lines
+            .filter(|l| !l.trim().is_empty())
+            .map(|l| {
+                l.split(',')
+                    .map(|x| x.parse().unwrap_or(f64::NAN))
+                    .collect()
+            })
+            .collect();
+        Ok(CsvColumns { header, rows })
+    }
+
+    /// Index of the column named `name`.
+    pub fn column(&self, name: &str) -> Option<usize> {
+        self.header.iter().position(|h| h == name)
+    }
+}
+
 /// Version of the checkpoint format.
 pub const CHECKPOINT_VERSION: u32 = 1;
 
