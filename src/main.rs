@@ -34,9 +34,13 @@ enum Command {
         /// Override any scenario key, e.g. --set collisions.default.e_n=0.8
         #[arg(long = "set", value_name = "KEY=VALUE")]
         overrides: Vec<String>,
-        /// No progress bar.
+        /// No progress reports.
         #[arg(long)]
         quiet: bool,
+        /// Wall time between progress lines when stderr is not a terminal
+        /// (s, default 5); on a terminal a progress bar is shown instead.
+        #[arg(long, value_name = "SECONDS")]
+        progress_interval: Option<f64>,
         /// Write a binary event log of every collision (docs/event-log.md).
         #[arg(long, value_name = "FILE")]
         log: Option<PathBuf>,
@@ -241,11 +245,13 @@ fn main() -> ExitCode {
             t_end,
             overrides,
             quiet,
+            progress_interval,
             log,
             log_checkpoint_steps,
         } => {
             let opts = edpm::run::RunOptions {
                 progress: !quiet,
+                progress_interval,
                 log,
                 log_checkpoint_steps,
             };

@@ -30,6 +30,7 @@ const STAGES: &[(&str, u32)] = &[
     ("gas", 3),
     // File formats.
     ("io", 4),
+    ("plot", 4), // PNG figures: a file format, used by run and analysis
     // Input: scenario files and the initial state.
     ("scenario", 5),
     ("initial", 5),
@@ -40,7 +41,6 @@ const STAGES: &[(&str, u32)] = &[
     ("sweep", 6),
     // After a run.
     ("analysis", 7),
-    ("plot", 7),
     ("replay", 7),
     // The library user's view.
     ("prelude", 8),

@@ -625,3 +625,100 @@ fn sweep_runs_the_grid_and_tabulates_each_point() {
     assert_clean_failure(&o, &["point 1", "collisions.default.e_n=1.5", "e_n"]);
     assert!(!bad.join("point-000").exists());
 }
+
+/// The first command of the README (its first ```sh block), as arguments
+/// after `cargo run --release --`.
+fn readme_first_command() -> Vec<String> {
+    let readme = std::fs::read_to_string(Path::new(ROOT).join("README.md")).unwrap();
+    let block = readme.split("```sh\n").nth(1).expect("a ```sh block");
+    let line = block.lines().next().expect("a first command");
+    let args = line
+        .split('#')
+        .next()
+        .unwrap()
+        .split_once("cargo run --release --")
+        .expect("the first command is `cargo run --release -- ...`")
+        .1;
+    args.split_whitespace().map(String::from).collect()
+}
+
+#[test]
+fn readme_first_command_runs_gas_coupled_and_draws_a_picture() {
+    let dir = fresh_dir("first-run");
+    let mut args = readme_first_command();
+    assert_eq!(
+        args[0], "run",
+        "the first command runs a scenario: {args:?}"
+    );
+    // The README's run, shortened from 1 s to 0.05 s of simulated time.
+    args.extend(["--t-end", "0.05", "--out"].map(String::from));
+    args.push(dir.to_string_lossy().into_owned());
+    let argv: Vec<&str> = args.iter().map(String::as_str).collect();
+    let o = edpm(&argv);
+    assert_success(&o);
+    // It says where its outputs are.
+    assert!(stderr(&o).contains(&format!("results in {}", dir.display())));
+    let s = summary(&dir);
+    assert_eq!(s["status"], "completed");
+    // What edpm is for: a gas-coupled run.
+    assert!(s["gas"].is_object(), "the first run has gas: {s}");
+    let png = read(&dir.join("particles.png"));
+    assert_eq!(&png[..8], b"\x89PNG\r\n\x1a\n", "particles.png is a PNG");
+    // Four frames side by side, each at least a few hundred pixels wide.
+    let width = u32::from_be_bytes(png[16..20].try_into().unwrap());
+    assert!(width > 800, "particles.png is {width} px wide");
+}
+
+#[test]
+fn batch_runs_print_progress_lines_on_stderr() {
+    let dir = fresh_dir("progress-lines");
+    // stderr is a pipe here, as in a queue job: lines, not a bar. A line
+    // every 10 ms of wall time; the run takes well over 0.1 s.
+    let o = edpm(&[
+        "run",
+        "scenarios/bubbling-bed-jet.toml",
+        "--out",
+        dir.to_str().unwrap(),
+        "--t-end",
+        "0.03",
+        "--progress-interval",
+        "0.01",
+    ]);
+    assert_success(&o);
+    let err = stderr(&o);
+    let lines: Vec<&str> = err
+        .lines()
+        .filter(|l| l.starts_with("edpm: t = "))
+        .collect();
+    assert!(lines.len() >= 2, "progress lines: {err}");
+    for l in &lines {
+        for part in ["s of 0.0300 s", "particles", "events/s", "ETA", "Courant"] {
+            assert!(l.contains(part), "{part:?} missing from {l:?}");
+        }
+    }
+    // Simulated time goes forward from line to line.
+    let t = |l: &str| -> f64 {
+        l["edpm: t = ".len()..]
+            .split(' ')
+            .next()
+            .unwrap()
+            .parse()
+            .unwrap()
+    };
+    assert!(lines.windows(2).all(|w| t(w[0]) <= t(w[1])), "{lines:?}");
+    // --quiet (added by run_into) silences them; a bad interval is refused.
+    let quiet = run_into(
+        "scenarios/bubbling-bed-jet.toml",
+        &fresh_dir("progress-quiet"),
+        &["--t-end", "0.01", "--progress-interval", "0.001"],
+    );
+    assert_success(&quiet);
+    assert!(!stderr(&quiet).contains("edpm: t = "), "{}", stderr(&quiet));
+    let bad = edpm(&[
+        "run",
+        "scenarios/box-walls.toml",
+        "--progress-interval",
+        "0",
+    ]);
+    assert_clean_failure(&bad, &["--progress-interval", "> 0 s"]);
+}

@@ -19,9 +19,8 @@ fn temp_dir(name: &str) -> PathBuf {
 fn logged_run(scenario: &Scenario, dir: &Path) -> PathBuf {
     let log = dir.join("run.log");
     let opts = RunOptions {
-        progress: false,
         log: Some(log.clone()),
-        log_checkpoint_steps: None,
+        ..Default::default()
     };
     run_scenario_with(scenario, dir, &opts).unwrap();
     log

@@ -17,7 +17,6 @@ mod diagnose;
 mod feeder;
 pub mod recorders;
 
-use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -51,6 +50,11 @@ pub fn run_cli(
         }
         overrides.push(format!("time.t_end={t:e}"));
     }
+    if let Some(every) = opts.progress_interval
+        && !(every.is_finite() && every > 0.0)
+    {
+        anyhow::bail!("--progress-interval: must be > 0 s and finite, got {every}");
+    }
     let scenario = Scenario::from_file_with_overrides(scenario_path, &overrides)?;
     for w in &scenario.warnings {
         eprintln!("edpm: warning: {}: {w}", scenario.name);
@@ -64,11 +68,7 @@ pub fn run_cli(
             PathBuf::from("out").join(stem)
         }
     };
-    let opts = RunOptions {
-        progress: opts.progress && std::io::stderr().is_terminal(),
-        ..opts.clone()
-    };
-    let summary = run_scenario_with(&scenario, &out_dir, &opts)?;
+    let summary = run_scenario_with(&scenario, &out_dir, opts)?;
     eprintln!(
         "edpm: {} particles, {} pair and {} wall collisions in {:.2} s CPU; results in {}",
         summary.particles_final,
@@ -199,8 +199,11 @@ pub fn run_scenario(s: &Scenario, out_dir: &Path, progress: bool) -> anyhow::Res
 /// How `edpm run` runs beyond what the scenario says.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct RunOptions {
-    /// Show a progress bar.
+    /// Report progress on stderr: a bar on a terminal, otherwise a line
+    /// every `progress_interval` seconds of wall time.
     pub progress: bool,
+    /// Wall time between progress lines of a batch run (s); None: 5 s.
+    pub progress_interval: Option<f64>,
     /// Write a binary event log here.
     pub log: Option<PathBuf>,
     /// Full-state checkpoints in the log every this many flow steps

@@ -23,6 +23,10 @@ pub const MAX_FLOW_STEPS: f64 = 1e8;
 pub const MAX_SAMPLES: f64 = 1e6;
 /// Most VTK or analysis snapshots (`t_end / interval`), each a file.
 pub const MAX_SNAPSHOTS: f64 = 1e5;
+
+/// Most frames of `particles.png` (side by side, each about 1200 px high
+/// for a tall domain).
+pub const MAX_PICTURE_FRAMES: usize = 12;
 /// Smallest diameter (m): 1 nm, a few molecules across, where a hard-sphere
 /// continuum particle stops meaning anything.
 pub const MIN_DIAMETER: f64 = 1e-9;

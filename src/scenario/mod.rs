@@ -370,6 +370,9 @@ pub struct OutputSettings {
     /// Cells of the collision tally per axis when there is no gas grid
     /// (default one cell per axis).
     pub tally_cells: Option<[usize; 3]>,
+    /// Frames of `particles.png`, evenly spaced in time up to `t_end`,
+    /// `0..=MAX_PICTURE_FRAMES` (default 4); 0: no picture.
+    pub picture_frames: usize,
 }
 
 /// A validated scenario with resolved indices and defaults.

@@ -176,6 +176,7 @@ pub(super) struct RawOutput {
     pub vtk_interval: Option<f64>,
     pub snapshot_interval: Option<f64>,
     pub tally_cells: Option<[RawInt; 3]>,
+    pub picture_frames: Option<RawInt>,
 }
 
 /// `[gas]`; resolved in `gas.rs`.

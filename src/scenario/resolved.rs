@@ -206,6 +206,11 @@ pub fn resolved_toml(s: &Scenario) -> String {
         Some(v) => w.key("snapshot_interval", float(v), "s"),
         None => w.comment("snapshot_interval: none (no analysis snapshots)"),
     }
+    w.key(
+        "picture_frames",
+        o.picture_frames.to_string(),
+        "frames of particles.png, evenly spaced up to t_end (0: none)",
+    );
     let tally = o.tally_cells.unwrap_or([1; 3]);
     w.key(
         "tally_cells",

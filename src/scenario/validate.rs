@@ -912,6 +912,9 @@ fn validate_engine(ctx: &Ctx, raw: Option<raw::RawEngine>) -> R<EngineSettings> 
 
 /// `[output]`: sample and snapshot intervals (at least one flow step, a
 /// bounded number per run) and the tally grid.
+/// Frames of `particles.png` unless `output.picture_frames` says otherwise.
+const DEFAULT_PICTURE_FRAMES: usize = 4;
+
 fn validate_output(
     ctx: &Ctx,
     raw: Option<&raw::RawOutput>,
@@ -919,14 +922,16 @@ fn validate_output(
     planar: bool,
 ) -> R<OutputSettings> {
     let (t_end, dt_flow) = (time.t_end, time.dt_flow);
-    let (sample_interval, vtk_interval, snapshot_interval, tally_cells) = match raw {
+    let (sample_interval, vtk_interval, snapshot_interval, tally_cells, picture_frames) = match raw
+    {
         Some(o) => (
             o.sample_interval,
             o.vtk_interval,
             o.snapshot_interval,
             o.tally_cells.clone(),
+            o.picture_frames.clone(),
         ),
-        None => (None, None, None, None),
+        None => (None, None, None, None, None),
     };
     // Samples and snapshots are taken at the ends of flow steps: intervals
     // are at least one flow step, and their number is bounded.
@@ -979,11 +984,28 @@ fn validate_output(
         }
         None => None,
     };
+    let picture_frames = match picture_frames {
+        Some(v) => {
+            let k = ctx.uint("output.picture_frames", &v)?;
+            if k > limits::MAX_PICTURE_FRAMES as u64 {
+                return Err(ctx.err(
+                    "output.picture_frames",
+                    format!(
+                        "must be in [0, {}] (0: no particles.png), got {k}",
+                        limits::MAX_PICTURE_FRAMES
+                    ),
+                ));
+            }
+            k as usize
+        }
+        None => DEFAULT_PICTURE_FRAMES,
+    };
     Ok(OutputSettings {
         sample_interval,
         vtk_interval,
         snapshot_interval,
         tally_cells,
+        picture_frames,
     })
 }
 

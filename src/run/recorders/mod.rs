@@ -1,8 +1,9 @@
 //! What a run writes as it goes, each writer a [`Recorder`]: the time
 //! series ([`time_series`]), VTK snapshots for ParaView ([`vtk`]), analysis
 //! snapshots with collision tallies ([`snapshots`]), the binary event log
-//! with its checkpoints ([`event_log`]), the final state ([`final_state`])
-//! and the progress bar ([`progress`]). The flow-step loop
+//! with its checkpoints ([`event_log`]), the final state ([`final_state`]),
+//! a picture of the particles ([`picture`]) and the progress reports
+//! ([`progress`]). The flow-step loop
 //! (`super::simulate`) calls every recorder at the same points of each
 //! step; a recorder reads the engine (and the gas) and never changes the
 //! particles.
@@ -12,6 +13,7 @@
 
 pub mod event_log;
 pub mod final_state;
+pub mod picture;
 pub mod progress;
 pub mod snapshots;
 pub mod time_series;
@@ -141,8 +143,19 @@ pub fn for_run<Q: EventQueue>(
         gas.is_some(),
     )));
     recorders.push(Box::new(final_state::FinalState::new(out_dir)));
+    if s.output.picture_frames > 0 {
+        recorders.push(Box::new(picture::Picture::new(
+            s,
+            out_dir,
+            s.output.picture_frames,
+        )));
+    }
     if opts.progress {
-        recorders.push(Box::new(progress::Progress::new(steps)));
+        recorders.push(Box::new(progress::Progress::new(
+            steps,
+            s.time.t_end,
+            opts.progress_interval,
+        )));
     }
     Ok(recorders)
 }
