@@ -134,15 +134,37 @@ pub fn particle_panels(
     })
 }
 
+/// Linear or logarithmic axes of a line plot.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Scale {
+    pub log_x: bool,
+    pub log_y: bool,
+}
+
+impl Scale {
+    pub const LINEAR: Scale = Scale {
+        log_x: false,
+        log_y: false,
+    };
+    pub const LOG_X: Scale = Scale {
+        log_x: true,
+        log_y: false,
+    };
+    pub const LOG_Y: Scale = Scale {
+        log_x: false,
+        log_y: true,
+    };
+}
+
 /// Line plot of several series (lines, with markers when a series has few
-/// points), axis labels and a legend; `log_y` gives a logarithmic y axis.
+/// points), axis labels and a legend that covers no data.
 pub fn line_plot(
     path: &Path,
     title: &str,
     x_label: &str,
     y_label: &str,
     series: &[Series],
-    log_y: bool,
+    scale: Scale,
 ) -> anyhow::Result<()> {
     let layers: Vec<Layer> = series
         .iter()
@@ -165,8 +187,8 @@ pub fn line_plot(
         title,
         x_label,
         y_label,
-        log_x: false,
-        log_y,
+        log_x: scale.log_x,
+        log_y: scale.log_y,
         square: false,
         x_pad: 0.02,
     };
@@ -210,7 +232,7 @@ pub fn distribution_plot(
         size: (1200, 800),
         title,
         x_label,
-        y_label: "probability density",
+        y_label: "probability density (−)",
         log_x: false,
         log_y,
         square: false,
@@ -508,6 +530,24 @@ impl Axis {
         }
     }
 
+    /// As [`Axis::fit`], with the top `top_fraction` of the axis left
+    /// free (room for a legend above the data).
+    fn fit_below(
+        vals: impl Iterator<Item = f64>,
+        log: bool,
+        pad: f64,
+        target: usize,
+        top_fraction: f64,
+    ) -> Axis {
+        let (lo, hi) = padded_range(vals.filter_map(|v| to_axis(v, log)), log, pad);
+        let hi = lo + (hi - lo) / (1.0 - top_fraction);
+        if log {
+            Axis::log(lo, hi)
+        } else {
+            Axis::linear(lo, hi, target)
+        }
+    }
+
     fn contains(&self, v: f64) -> bool {
         v >= self.lo && v <= self.hi
     }
@@ -515,7 +555,9 @@ impl Axis {
     /// Tick label of axis-space value `v`.
     fn label(&self, v: f64) -> String {
         let s = if self.log {
-            if (v - v.round()).abs() < 1e-6 {
+            // Powers of ten as 10ⁿ on axes spanning three decades or more;
+            // on shorter ones every label as a plain number (0.05, 0.1).
+            if (v - v.round()).abs() < 1e-6 && self.hi - self.lo >= 3.0 {
                 format!("10{}", superscript(v.round() as i64))
             } else {
                 format_general(10f64.powf(v))
@@ -884,14 +926,28 @@ fn clip_polyline(line: &[(f64, f64)], x: &Axis, y: &Axis) -> Vec<Vec<(f64, f64)>
     out
 }
 
-/// The legend corner that covers the fewest drawn points.
+/// The legend's width and height as fractions of a plotting area of
+/// `plot_w` × `plot_h` px; `None` without entries.
+fn legend_extent(layers: &[Layer], plot_w: f64, plot_h: f64) -> Option<(f64, f64)> {
+    let labelled = layers.iter().filter(|l| !l.label.is_empty());
+    let entries = labelled.clone().count();
+    let longest = labelled
+        .map(|l| l.label.chars().count() + if l.points.is_empty() { 10 } else { 0 })
+        .max()?;
+    let w = LEGEND_SAMPLE as f64 + 40.0 + longest as f64 * LEGEND_FONT * 0.6;
+    let h = entries as f64 * (LEGEND_FONT + 12.0) + 30.0;
+    Some((w / plot_w.max(1.0), h / plot_h.max(1.0)))
+}
+
+/// The legend corner that covers the fewest drawn points, and how many it
+/// covers.
 fn legend_corner(
     lines: &[Vec<Vec<(f64, f64)>>],
     x: &Axis,
     y: &Axis,
     legend_w: f64,
     legend_h: f64,
-) -> SeriesLabelPosition {
+) -> (SeriesLabelPosition, usize) {
     // Sample every polyline densely in normalised [0,1]² coordinates.
     let mut pts = Vec::new();
     for l in lines.iter().flatten() {
@@ -930,14 +986,14 @@ fn legend_corner(
             })
             .count()
     };
-    let mut best = (usize::MAX, SeriesLabelPosition::UpperRight);
+    let mut best = (SeriesLabelPosition::UpperRight, usize::MAX);
     for (pos, right, upper) in candidates {
         let c = count(right, upper);
-        if c < best.0 {
-            best = (c, pos);
+        if c < best.1 {
+            best = (pos, c);
         }
     }
-    best.1
+    best
 }
 
 /// Axes and label-area sizes of an x-y figure.
@@ -962,7 +1018,7 @@ fn xy_layout(fig: &XyFigure, layers: &[Layer]) -> anyhow::Result<XyLayout> {
             .flat_map(|l| l.points.iter().copied())
             .filter(|&(x, y)| to_axis(x, fig.log_x).is_some() && to_axis(y, fig.log_y).is_some())
     };
-    let (x_axis, y_axis) = if fig.square {
+    let (x_axis, mut y_axis) = if fig.square {
         // The first layer (y = x) spans the shared range exactly.
         let x = Axis::fit(range_pts().flat_map(|(x, y)| [x, y]), fig.log_x, 0.0, 8);
         let y = x.clone();
@@ -986,6 +1042,26 @@ fn xy_layout(fig: &XyFigure, layers: &[Layer]) -> anyhow::Result<XyLayout> {
         // Height making the plotting area square.
         let side = w.saturating_sub(XY_MARGIN + left + right).max(100);
         h = TITLE_H + XY_TOP_MARGIN + side + bottom + XY_MARGIN;
+    } else {
+        // When every corner of the legend would cover data, raise the top
+        // of the y axis so that the legend's band above the data is empty.
+        let plot_w = w.saturating_sub(XY_MARGIN + left + right) as f64;
+        let plot_h = h.saturating_sub(TITLE_H + XY_TOP_MARGIN + bottom + XY_MARGIN) as f64;
+        if let Some((lw, lh)) = legend_extent(layers, plot_w, plot_h) {
+            let lines: Vec<Vec<Vec<(f64, f64)>>> = layers
+                .iter()
+                .map(|l| polylines(&l.points, fig.log_x, fig.log_y))
+                .collect();
+            if legend_corner(&lines, &x_axis, &y_axis, lw, lh).1 > 0 && lh < 0.6 {
+                y_axis = Axis::fit_below(
+                    range_pts().map(|p| p.1),
+                    fig.log_y,
+                    0.05,
+                    8,
+                    lh + 0.02,
+                );
+            }
+        }
     }
     Ok(XyLayout {
         size: (w, h),
@@ -1105,7 +1181,6 @@ fn draw_xy(
     }
 
     // Legend: one entry per layer, in order, including empty series.
-    let mut longest = 0usize;
     for (layer, geom) in layers.iter().zip(&lines) {
         if layer.label.is_empty() {
             continue;
@@ -1115,7 +1190,6 @@ fn draw_xy(
         } else {
             layer.label.clone()
         };
-        longest = longest.max(label.chars().count());
         let (color, line, marker) = (layer.color, layer.line, layer.marker);
         chart
             .draw_series(std::iter::empty::<Glyph<(f64, f64)>>())?
@@ -1126,13 +1200,10 @@ fn draw_xy(
                 marker: marker.map(|(m, s)| (m, s, color)),
             });
     }
-    let n_entries = layers.iter().filter(|l| !l.label.is_empty()).count();
-    if n_entries > 0 {
-        let (px, py) = chart.plotting_area().get_pixel_range();
-        let (pw, ph) = ((px.end - px.start) as f64, (py.end - py.start) as f64);
-        let lw = (LEGEND_SAMPLE as f64 + 40.0 + longest as f64 * LEGEND_FONT * 0.6) / pw;
-        let lh = (n_entries as f64 * (LEGEND_FONT + 12.0) + 30.0) / ph;
-        let pos = legend_corner(&lines, x_axis, y_axis, lw, lh);
+    let (px, py) = chart.plotting_area().get_pixel_range();
+    let (pw, ph) = ((px.end - px.start) as f64, (py.end - py.start) as f64);
+    if let Some((lw, lh)) = legend_extent(layers, pw, ph) {
+        let (pos, _) = legend_corner(&lines, x_axis, y_axis, lw, lh);
         chart
             .configure_series_labels()
             .position(pos)
@@ -1573,6 +1644,48 @@ mod tests {
         }
     }
 
+    #[test]
+    fn legend_never_covers_data_when_lines_fill_every_corner() {
+        // Lines along the top and the bottom of the data range leave no free
+        // corner: the layout must raise the y axis until one is free.
+        let xs: Vec<f64> = (0..=50).map(|k| k as f64 / 50.0).collect();
+        let layers: Vec<Layer> = [0.0, 0.5, 1.0]
+            .iter()
+            .enumerate()
+            .map(|(i, &y)| Layer {
+                label: format!("a long legend entry for the line at y = {y}"),
+                color: palette(i),
+                points: xs.iter().map(|&x| (x, y)).collect(),
+                line: Some(LineKind::Solid(2)),
+                marker: None,
+                include_in_range: true,
+                guide: false,
+            })
+            .collect();
+        let fig = XyFigure {
+            size: (1200, 800),
+            title: "t",
+            x_label: "x",
+            y_label: "y",
+            log_x: false,
+            log_y: false,
+            square: false,
+            x_pad: 0.02,
+        };
+        let layout = xy_layout(&fig, &layers).unwrap();
+        let (w, h) = layout.size;
+        let plot_w = (w - XY_MARGIN - layout.left - layout.right) as f64;
+        let plot_h = (h - TITLE_H - XY_TOP_MARGIN - layout.bottom - XY_MARGIN) as f64;
+        let (lw, lh) = legend_extent(&layers, plot_w, plot_h).unwrap();
+        let lines: Vec<Vec<Vec<(f64, f64)>>> =
+            layers.iter().map(|l| polylines(&l.points, false, false)).collect();
+        let (_, covered) = legend_corner(&lines, &layout.x_axis, &layout.y_axis, lw, lh);
+        assert_eq!(covered, 0, "y axis {:?}", (layout.y_axis.lo, layout.y_axis.hi));
+        // Without the extra room every corner would cover a line.
+        let tight = Axis::fit(layers.iter().flat_map(|l| l.points.iter().map(|p| p.1)), false, 0.05, 8);
+        assert!(legend_corner(&lines, &layout.x_axis, &tight, lw, lh).1 > 0);
+    }
+
     fn tmp_dir(name: &str) -> std::path::PathBuf {
         let d = std::env::temp_dir().join(format!("edpm_plot_{}_{name}", std::process::id()));
         std::fs::create_dir_all(&d).unwrap();
@@ -1803,7 +1916,7 @@ mod tests {
             "x (m)",
             "vertical velocity (m/s)",
             &series,
-            false,
+            Scale::LINEAR,
         )
         .unwrap();
         let (w, h, px) = decode(&path);
@@ -1820,12 +1933,12 @@ mod tests {
             "t (s)",
             "T (m²/s²)",
             &[Series::new("T", ts)],
-            true,
+            Scale::LOG_Y,
         )
         .unwrap();
         decode(&dir.join("log.png"));
         // Nothing at all to draw.
-        line_plot(&dir.join("empty.png"), "empty", "x", "y", &[], true).unwrap();
+        line_plot(&dir.join("empty.png"), "empty", "x", "y", &[], Scale::LOG_Y).unwrap();
         line_plot(
             &dir.join("nan.png"),
             "nan",
@@ -1835,7 +1948,7 @@ mod tests {
                 "nan",
                 vec![(f64::NAN, 1.0), (1.0, f64::INFINITY)],
             )],
-            false,
+            Scale::LINEAR,
         )
         .unwrap();
         decode(&dir.join("nan.png"));
@@ -1844,8 +1957,8 @@ mod tests {
             Series::new("", vec![(1e300, 1e-300), (1e300, 2e-300)]),
             Series::new("flat", vec![(0.0, 1e17), (1.0, 1e17)]),
         ];
-        for log in [false, true] {
-            line_plot(&dir.join("extreme.png"), "", "x", "y", &extreme, log).unwrap();
+        for scale in [Scale::LINEAR, Scale::LOG_Y, Scale::LOG_X] {
+            line_plot(&dir.join("extreme.png"), "", "x", "y", &extreme, scale).unwrap();
             decode(&dir.join("extreme.png"));
         }
     }

@@ -667,6 +667,16 @@ fn readme_first_command_runs_gas_coupled_and_draws_a_picture() {
     // Four frames side by side, each at least a few hundred pixels wide.
     let width = u32::from_be_bytes(png[16..20].try_into().unwrap());
     assert!(width > 800, "particles.png is {width} px wide");
+    // Counts are written as integers (2400, not 2400.0).
+    let text = std::fs::read_to_string(dir.join("timeseries.csv")).unwrap();
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let last: Vec<&str> = lines.last().unwrap().split(',').collect();
+    for count in ["particles", "pair_collisions", "wall_collisions", "collapse_reports"] {
+        let c = header.iter().position(|h| *h == count).unwrap();
+        assert!(last[c].parse::<u64>().is_ok(), "{count} = {:?}", last[c]);
+    }
+    assert_eq!(last[header.iter().position(|h| *h == "particles").unwrap()], "2400");
 }
 
 #[test]

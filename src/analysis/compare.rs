@@ -43,13 +43,14 @@ pub fn compare_runs(
          particles in clusters | wall/core solids | T (m²/s²) | T_rot (m²/s²) | a2 pooled | a2 per cell | T_h/T_v |\n\
          |---|---|---|---|---|---|---|---|---|---|---|---|\n",
     );
-    for (k, (dir, s)) in runs.iter().enumerate() {
+    for (dir, s) in runs {
         let h = &s.heterogeneity;
         let v = &s.velocity;
         let anisotropy = v.anisotropy.values().next().copied().unwrap_or(f64::NAN);
         let wall = h.wall_to_core_ratio.unwrap_or(f64::NAN);
-        table.row(&[
-            k as f64,
+        table.labelled_row(
+            &name(dir),
+            &[
             h.mean_solids_fraction,
             h.std_over_mean,
             h.poisson_std_over_mean,
@@ -61,7 +62,8 @@ pub fn compare_runs(
             v.sonine_a2,
             v.sonine_a2_cell_normalised,
             anisotropy,
-        ]);
+        ],
+        );
         md.push_str(&format!(
             "| {} | {:.4} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.4} | {:.4} | {:.3} | {:.3} | {:.3} |\n",
             name(dir),
@@ -78,14 +80,6 @@ pub fn compare_runs(
             anisotropy
         ));
     }
-    md.push_str(&format!(
-        "\nRun index in comparison.csv: {}.\n",
-        runs.iter()
-            .enumerate()
-            .map(|(k, (d, _))| format!("{k} = {}", name(d)))
-            .collect::<Vec<_>>()
-            .join(", ")
-    ));
     table.write(&out_dir.join("comparison.csv"))?;
     write_atomic(&out_dir.join("comparison.md"), md.as_bytes())?;
     let mut files = vec!["comparison.csv".to_string(), "comparison.md".to_string()];
@@ -141,10 +135,10 @@ pub fn compare_runs(
     plot::line_plot(
         &out_dir.join("comparison_profiles.png"),
         "time-averaged solids fraction across the width (mean over heights)",
-        "lateral position (m)",
-        "solids fraction",
+        super::figure_spec::LATERAL_POSITION,
+        "solids fraction (−)",
         &series,
-        false,
+        plot::Scale::LINEAR,
     )?;
     files.push("comparison_profiles.png".to_string());
     Ok(files)

@@ -9,41 +9,25 @@ use anyhow::Context;
 
 use super::figure_spec::{FIGURES, FigureSpec};
 use crate::io::snapshot::Snapshot;
-use crate::plot::{self, ParticlePanel, Series};
+use crate::plot::{self, ParticlePanel, Scale, Series};
 
 /// A CSV table of numbers with a header.
 /// The numeric CSV reader of `io`, with the plotting helpers below.
 pub(super) use crate::io::output::CsvColumns as Table;
 
 impl Table {
+    /// Column `y` against column `x`, finite points only, sorted by x (so
+    /// that a line never runs back, whatever the row order).
     fn series(&self, x: usize, y: usize, label: &str) -> Series {
-        Series::new(
-            label,
-            self.rows
-                .iter()
-                .filter_map(|r| Some((*r.get(x)?, *r.get(y)?)))
-                .filter(|(a, b)| a.is_finite() && b.is_finite())
-                .collect(),
-        )
+        let mut points: Vec<(f64, f64)> = self
+            .rows
+            .iter()
+            .filter_map(|r| Some((*r.get(x)?, *r.get(y)?)))
+            .filter(|(a, b)| a.is_finite() && b.is_finite())
+            .collect();
+        points.sort_by(|a, b| a.0.total_cmp(&b.0));
+        Series::new(label, points)
     }
-}
-
-/// Human-readable axis label for a CSV column (units from its suffix).
-fn label(column: &str) -> String {
-    for (suffix, unit) in [
-        ("_m2_s2", " (m²/s²)"),
-        ("_kg_m2_s", " (kg/(m² s))"),
-        ("_W_m3", " (W/m³)"),
-        ("_Pa", " (Pa)"),
-        ("_J", " (J)"),
-        ("_s", " (s)"),
-        ("_m", " (m)"),
-    ] {
-        if let Some(stem) = column.strip_suffix(suffix) {
-            return format!("{}{unit}", stem.replace('_', " "));
-        }
-    }
-    column.replace('_', " ")
 }
 
 /// Draws every figure of [`FIGURES`] whose CSV exists; returns the PNG
@@ -65,51 +49,38 @@ pub fn draw_all(out_dir: &Path, title: &str) -> anyhow::Result<Vec<String>> {
     Ok(written)
 }
 
-fn draw(out_dir: &Path, title: &str, spec: &FigureSpec, table: &Table) -> anyhow::Result<()> {
+fn draw(out_dir: &Path, run: &str, spec: &FigureSpec, table: &Table) -> anyhow::Result<()> {
     let path = out_dir.join(spec.name);
     let Some(x) = table.column(spec.x) else {
         return Ok(());
     };
+    // (column index, legend entry) of the columns present.
     let columns: Vec<(usize, &str)> = spec
         .y
         .iter()
-        .filter_map(|&c| table.column(c).map(|i| (i, c)))
+        .filter_map(|&(c, legend)| table.column(c).map(|i| (i, legend)))
         .collect();
-    let heading = format!("{title}: {}", spec.what);
+    let title = format!("{run}: {}", spec.title);
+    let scale = Scale {
+        log_x: spec.log_x,
+        log_y: false,
+    };
     match spec.name {
         "velocity_distribution.png" | "speed_distribution.png" => {
-            let (reference, data): (Vec<_>, Vec<_>) = columns
-                .iter()
-                .partition(|(_, c)| *c == "gaussian" || *c == "maxwellian");
+            // The last column is the reference curve.
+            let Some((&(reference, legend), data)) = columns.split_last() else {
+                return Ok(());
+            };
             let series: Vec<Series> = data
                 .iter()
-                .map(|&(i, c)| {
-                    let name = match (c, c.strip_prefix("f_")) {
-                        ("f_cell", _) => "f(|C|/√T_c), own cell's T".to_string(),
-                        (_, Some(axis)) => match axis.strip_suffix("_cell") {
-                            Some(axis) => format!("f(C_{axis}/√T_c), own cell's T"),
-                            None => format!("f(C_{axis}/σ_{axis})"),
-                        },
-                        _ => "f(|C|/√T)".to_string(),
-                    };
-                    table.series(x, i, &name)
-                })
+                .map(|&(i, legend)| table.series(x, i, legend))
                 .collect();
-            let reference = reference
-                .first()
-                .map(|&(i, c)| table.series(x, i, c))
-                .unwrap_or_default();
-            let x_label = if spec.x == "c_over_sigma" {
-                "C_i / σ_i or C_i / √T_c"
-            } else {
-                "|C| / √T or |C| / √T_c"
-            };
-            plot::distribution_plot(&path, &heading, x_label, &series, &reference, true)
+            let reference = table.series(x, reference, legend);
+            plot::distribution_plot(&path, &title, spec.x_label, &series, &reference, true)
         }
         "profiles_width.png" => {
-            // One line per height; solids fraction only (flux in the CSV).
-            let (Some(h), Some(y)) = (table.column("height_m"), table.column("solids_fraction"))
-            else {
+            // One line per height.
+            let (Some(h), Some(&(y, _))) = (table.column("height_m"), columns.first()) else {
                 return Ok(());
             };
             let mut by_height: BTreeMap<i64, Vec<(f64, f64)>> = BTreeMap::new();
@@ -123,27 +94,18 @@ fn draw(out_dir: &Path, title: &str, spec: &FigureSpec, table: &Table) -> anyhow
                 .into_iter()
                 .map(|(k, pts)| Series::new(format!("height {:.2} m", k as f64 * 1e-6), pts))
                 .collect();
-            plot::line_plot(
-                &path,
-                &format!("{title}: solids fraction across the width"),
-                &label(spec.x),
-                "solids fraction",
-                &series,
-                false,
-            )
+            plot::line_plot(&path, &title, spec.x_label, spec.y_label, &series, scale)
         }
         "ktgf_pressure.png" | "ktgf_dissipation.png" => {
-            // Measured against predicted, both KTGF g0 forms.
-            let measured = columns[0].0;
-            let series: Vec<Series> = columns[1..]
+            // Each prediction against the measurement (the first column).
+            let Some((&(measured, _), predictions)) = columns.split_first() else {
+                return Ok(());
+            };
+            let series: Vec<Series> = predictions
                 .iter()
-                .map(|&(i, c)| {
+                .map(|&(i, legend)| {
                     Series::new(
-                        if c.ends_with("ma_Pa") || c.ends_with("ma_W_m3") {
-                            "KTGF, Ma–Ahmadi g0 (Table 5)"
-                        } else {
-                            "KTGF, Carnahan–Starling (3D) or Henderson (2D) g0"
-                        },
+                        legend,
                         table
                             .rows
                             .iter()
@@ -153,26 +115,14 @@ fn draw(out_dir: &Path, title: &str, spec: &FigureSpec, table: &Table) -> anyhow
                     )
                 })
                 .collect();
-            plot::parity_plot(
-                &path,
-                &heading,
-                &format!("measured {}", label(columns[0].1)),
-                "kinetic theory prediction",
-                &series,
-                true,
-            )
+            plot::parity_plot(&path, &title, spec.x_label, spec.y_label, &series, true)
         }
         _ => {
             let series: Vec<Series> = columns
                 .iter()
-                .map(|&(i, c)| table.series(x, i, &label(c)))
+                .map(|&(i, legend)| table.series(x, i, legend))
                 .collect();
-            let y_label = if columns.len() == 1 {
-                label(columns[0].1)
-            } else {
-                String::new()
-            };
-            plot::line_plot(&path, &heading, &label(spec.x), &y_label, &series, false)
+            plot::line_plot(&path, &title, spec.x_label, spec.y_label, &series, scale)
         }
     }
 }

@@ -29,22 +29,79 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// Columns that hold counts or indices, in every CSV edpm writes: their
+/// values are written as integers (`500`, not `500.0`).
+pub const INTEGER_COLUMNS: &[&str] = &[
+    "id",
+    "material",
+    "point",
+    "particles",
+    "pair_collisions",
+    "wall_collisions",
+    "collapse_reports",
+    "collisions",
+    "altered_collisions",
+    "cell",
+    "i",
+    "j",
+    "k",
+    "cells",
+    "cells_used",
+    "cells_skipped",
+    "cell_samples_used",
+    "cell_samples_skipped",
+    "particles_used",
+    "samples",
+    "snapshots_used",
+];
+
+/// One CSV cell: integers (by column) without a fraction, other numbers
+/// with full round-trip precision.
+pub fn csv_number(v: f64, integer: bool) -> String {
+    if integer && v.is_finite() && v.fract() == 0.0 && v.abs() < 9.007e15 {
+        format!("{}", v as i64)
+    } else {
+        format!("{v:?}")
+    }
+}
+
 /// A CSV table built in memory and written atomically.
 #[derive(Clone, Debug, Default)]
 pub struct CsvTable {
     text: String,
+    /// Whether each column is one of [`INTEGER_COLUMNS`].
+    integer: Vec<bool>,
 }
 
 impl CsvTable {
     pub fn new(header: &[&str]) -> Self {
         CsvTable {
             text: header.join(",") + "\n",
+            integer: header.iter().map(|h| INTEGER_COLUMNS.contains(h)).collect(),
         }
     }
 
-    /// Appends one row; floats are written with full round-trip precision.
+    /// Appends one row; floats are written with full round-trip precision,
+    /// counts as integers.
     pub fn row(&mut self, values: &[f64]) {
-        let cells: Vec<String> = values.iter().map(|v| format!("{v:?}")).collect();
+        self.push_cells(values, 0);
+    }
+
+    /// Appends one row whose first column is the text `label` (commas,
+    /// quotes and line breaks in it become `_`), then `values`.
+    pub fn labelled_row(&mut self, label: &str, values: &[f64]) {
+        self.text.push_str(&label.replace([',', '"', '\n'], "_"));
+        self.text.push(',');
+        self.push_cells(values, 1);
+    }
+
+    /// Appends `values` as the columns from `first` on, and ends the row.
+    fn push_cells(&mut self, values: &[f64], first: usize) {
+        let cells: Vec<String> = values
+            .iter()
+            .enumerate()
+            .map(|(c, &v)| csv_number(v, self.integer.get(first + c) == Some(&true)))
+            .collect();
         self.text.push_str(&cells.join(","));
         self.text.push('\n');
     }
@@ -147,6 +204,19 @@ impl Checkpoint {
 mod tests {
     use super::*;
     use glam::DVec3;
+
+    #[test]
+    fn counts_are_integers_and_other_numbers_round_trip() {
+        let mut t = CsvTable::new(&["run", "time_s", "particles", "pair_collisions"]);
+        t.labelled_row("ideal, 2D", &[0.1, 500.0, 3.0]);
+        t.row(&[7.0, 1.0 / 3.0, 1e20, f64::NAN]);
+        assert_eq!(
+            t.text,
+            "run,time_s,particles,pair_collisions\n\
+             ideal_ 2D,0.1,500,3\n\
+             7.0,0.3333333333333333,1e20,NaN\n"
+        );
+    }
 
     #[test]
     fn checkpoint_round_trips_bit_for_bit_and_rejects_other_versions() {
