@@ -162,6 +162,15 @@ enum Command {
         )]
         heights: Vec<f64>,
     },
+    /// Redraw every figure of an analysis directory from its CSV files
+    /// (docs/figures.md).
+    Figures {
+        /// RUN_DIR/analysis, or any directory holding its CSV files.
+        dir: PathBuf,
+        /// Title prefix (default: the run directory's name).
+        #[arg(long)]
+        title: Option<String>,
+    },
     /// Elastic smooth spheres in a periodic cube; prints one JSON line.
     Bench {
         /// Particle count (rounded to 4 k³ for the FCC start).
@@ -319,6 +328,7 @@ fn main() -> ExitCode {
             },
             compare_out.as_deref(),
         ),
+        Command::Figures { dir, title } => edpm::analysis::figures_cli(&dir, title.as_deref()),
         Command::Bench {
             n,
             phi,

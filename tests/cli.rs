@@ -732,3 +732,39 @@ fn batch_runs_print_progress_lines_on_stderr() {
     ]);
     assert_clean_failure(&bad, &["--progress-interval", "> 0 s"]);
 }
+
+#[test]
+fn figures_redraw_from_committed_results() {
+    // docs/figures.md: every CSV-backed figure is redrawn from the CSV
+    // files committed in results/ (a copy, so the repository is untouched).
+    let dir = fresh_dir("figures");
+    let src = Path::new(ROOT).join("results/bubbling-bed/nonideal");
+    for entry in std::fs::read_dir(&src).unwrap() {
+        let path = entry.unwrap().path();
+        if path.extension().is_some_and(|e| e == "csv") {
+            std::fs::copy(&path, dir.join(path.file_name().unwrap())).unwrap();
+        }
+    }
+    let o = edpm(&["figures", dir.to_str().unwrap(), "--title", "bed"]);
+    assert_success(&o);
+    for png in [
+        "velocity_distribution.png",
+        "speed_distribution.png",
+        "temperature_timeseries.png",
+        "cell_size_temperature.png",
+        "cell_size_sonine_a2.png",
+        "profiles_width.png",
+        "profile_height.png",
+        "pressure_drop.png",
+        "energy_budget.png",
+        "ktgf_pressure.png",
+        "ktgf_dissipation.png",
+    ] {
+        let bytes = read(&dir.join(png));
+        assert_eq!(&bytes[..8], b"\x89PNG\r\n\x1a\n", "{png}");
+    }
+    // A directory without figure data is an error, not silence.
+    let empty = fresh_dir("figures-empty");
+    let o = edpm(&["figures", empty.to_str().unwrap()]);
+    assert_clean_failure(&o, &["no figure data"]);
+}

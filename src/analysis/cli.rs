@@ -40,6 +40,42 @@ pub fn analyse_cli(
     Ok(())
 }
 
+/// `edpm figures`: redraws every figure of an analysis directory from its
+/// CSV files (for example from committed results, after a change of style).
+pub fn figures_cli(dir: &Path, title: Option<&str>) -> anyhow::Result<()> {
+    if !dir.is_dir() {
+        anyhow::bail!(
+            "{}: not a directory (give RUN_DIR/analysis or a directory of its CSV files)",
+            dir.display()
+        );
+    }
+    let title = match title {
+        Some(t) => t.to_string(),
+        None => dir
+            .canonicalize()
+            .ok()
+            .and_then(|d| {
+                let name = d.file_name()?.to_string_lossy().into_owned();
+                // RUN_DIR/analysis is named after RUN_DIR.
+                if name == "analysis" {
+                    Some(d.parent()?.file_name()?.to_string_lossy().into_owned())
+                } else {
+                    Some(name)
+                }
+            })
+            .unwrap_or_else(|| "run".to_string()),
+    };
+    let names = super::figures::draw_all(dir, &title)?;
+    if names.is_empty() {
+        anyhow::bail!(
+            "{}: no figure data (none of the CSV files of docs/figures.md)",
+            dir.display()
+        );
+    }
+    eprintln!("edpm: drew {} in {}", names.join(", "), dir.display());
+    Ok(())
+}
+
 /// Analyses one run and prints its headline figures.
 fn analyse_one(run_dir: &Path, opts: &AnalyseOptions) -> anyhow::Result<AnalysisSummary> {
     let s = analyse_run(run_dir, opts)?;

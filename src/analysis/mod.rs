@@ -95,6 +95,6 @@ pub mod profiles;
 pub mod segregation;
 pub mod velocity;
 
-pub use cli::analyse_cli;
+pub use cli::{analyse_cli, figures_cli};
 pub use driver::{AnalyseOptions, AnalysisSummary, HEIGHT_BANDS, analyse_run};
 pub use figure_spec::FIGURES;
