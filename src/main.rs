@@ -69,7 +69,8 @@ enum Command {
         /// Scenario file (TOML).
         scenario: PathBuf,
         /// KEY=V1,V2,... sweeps KEY over the values (commas inside [...],
-        /// {...} or quotes do not split); KEY=V fixes it for every point.
+        /// {...} or quotes do not split); KEY=V fixes it for every point;
+        /// {KEY2} in a value stands for the point's value of KEY2.
         #[arg(long = "set", value_name = "KEY=VALUES", required = true)]
         sets: Vec<String>,
         /// Output directory of the sweep.
@@ -82,8 +83,9 @@ enum Command {
         #[arg(long)]
         jobs: Option<usize>,
         /// Table columns: dotted paths into summary.json
-        /// (counters.pair_collisions), or FILE.csv:COLUMN for the time
-        /// average of a column of the run's FILE.csv (default: particles,
+        /// (counters.pair_collisions), FILE.csv:COLUMN for the time
+        /// average of a column of the run's FILE.csv, FILE.csv:COLUMN:std
+        /// for its standard deviation (default: particles,
         /// collisions, kinetic energy, CPU time, and the pressure drop of
         /// gas runs).
         #[arg(long, value_delimiter = ',')]

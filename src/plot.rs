@@ -1053,13 +1053,7 @@ fn xy_layout(fig: &XyFigure, layers: &[Layer]) -> anyhow::Result<XyLayout> {
                 .map(|l| polylines(&l.points, fig.log_x, fig.log_y))
                 .collect();
             if legend_corner(&lines, &x_axis, &y_axis, lw, lh).1 > 0 && lh < 0.6 {
-                y_axis = Axis::fit_below(
-                    range_pts().map(|p| p.1),
-                    fig.log_y,
-                    0.05,
-                    8,
-                    lh + 0.02,
-                );
+                y_axis = Axis::fit_below(range_pts().map(|p| p.1), fig.log_y, 0.05, 8, lh + 0.02);
             }
         }
     }
@@ -1677,12 +1671,24 @@ mod tests {
         let plot_w = (w - XY_MARGIN - layout.left - layout.right) as f64;
         let plot_h = (h - TITLE_H - XY_TOP_MARGIN - layout.bottom - XY_MARGIN) as f64;
         let (lw, lh) = legend_extent(&layers, plot_w, plot_h).unwrap();
-        let lines: Vec<Vec<Vec<(f64, f64)>>> =
-            layers.iter().map(|l| polylines(&l.points, false, false)).collect();
+        let lines: Vec<Vec<Vec<(f64, f64)>>> = layers
+            .iter()
+            .map(|l| polylines(&l.points, false, false))
+            .collect();
         let (_, covered) = legend_corner(&lines, &layout.x_axis, &layout.y_axis, lw, lh);
-        assert_eq!(covered, 0, "y axis {:?}", (layout.y_axis.lo, layout.y_axis.hi));
+        assert_eq!(
+            covered,
+            0,
+            "y axis {:?}",
+            (layout.y_axis.lo, layout.y_axis.hi)
+        );
         // Without the extra room every corner would cover a line.
-        let tight = Axis::fit(layers.iter().flat_map(|l| l.points.iter().map(|p| p.1)), false, 0.05, 8);
+        let tight = Axis::fit(
+            layers.iter().flat_map(|l| l.points.iter().map(|p| p.1)),
+            false,
+            0.05,
+            8,
+        );
         assert!(legend_corner(&lines, &layout.x_axis, &tight, lw, lh).1 > 0);
     }
 

@@ -91,25 +91,47 @@ fn parse_axes(sets: &[String]) -> anyhow::Result<Vec<Axis>> {
         .collect()
 }
 
-/// The grid's points as override lists, first axis slowest.
+/// The grid's points as override lists, first axis slowest. In a value,
+/// `{KEY}` stands for the point's value of the swept key KEY, so that two
+/// keys can move together (`--set gas.initial_velocity=[0,{gas.faces.y_lo.inflow},0]`).
 fn grid(axes: &[Axis]) -> Vec<Vec<String>> {
-    axes.iter().fold(vec![Vec::new()], |points, axis| {
+    let points = axes.iter().fold(vec![Vec::new()], |points, axis| {
         points
             .iter()
             .flat_map(|p| {
                 axis.values.iter().map(move |v| {
-                    let mut q = p.clone();
-                    q.push(format!("{}={v}", axis.key));
+                    let mut q: Vec<(String, String)> = p.clone();
+                    q.push((axis.key.clone(), v.clone()));
                     q
                 })
             })
             .collect()
-    })
+    });
+    points
+        .into_iter()
+        .map(|p| {
+            p.iter()
+                .map(|(key, value)| {
+                    let value = p
+                        .iter()
+                        .fold(value.clone(), |v, (k, x)| v.replace(&format!("{{{k}}}"), x));
+                    format!("{key}={value}")
+                })
+                .collect()
+        })
+        .collect()
 }
 
-/// A value of one column for one point (`None`: missing or not a number).
+/// A value of one column for one point (`None`: missing or not a number):
+/// `FILE.csv:COLUMN` is the mean over rows with `time_s >= after`,
+/// `FILE.csv:COLUMN:std` their sample standard deviation, anything else a
+/// dotted path into `summary.json`.
 fn column_value(dir: &Path, summary: &serde_json::Value, column: &str, after: f64) -> Option<f64> {
     if let Some((file, name)) = column.split_once(':') {
+        let (name, std) = match name.strip_suffix(":std") {
+            Some(n) => (n, true),
+            None => (name, false),
+        };
         let table = CsvColumns::read(&dir.join(file)).ok()?;
         let (t, c) = (table.column("time_s")?, table.column(name)?);
         let values: Vec<f64> = table
@@ -118,8 +140,14 @@ fn column_value(dir: &Path, summary: &serde_json::Value, column: &str, after: f6
             .filter(|r| r.get(t).is_some_and(|&time| time >= after))
             .filter_map(|r| r.get(c).copied())
             .collect();
-        let mean = values.iter().sum::<f64>() / values.len() as f64;
-        return mean.is_finite().then_some(mean);
+        let n = values.len() as f64;
+        let mean = values.iter().sum::<f64>() / n;
+        let value = if std {
+            (values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0)).sqrt()
+        } else {
+            mean
+        };
+        return value.is_finite().then_some(value);
     }
     column
         .split('.')
@@ -173,14 +201,9 @@ fn run_point(
 
 /// Runs the sweep and writes `sweep.csv` and `sweep.md` into `opts.out`.
 /// Fails, after writing both, when a point failed.
-///
-/// Long function: validation, the parallel runs and both tables in order
-/// (about 165 lines, issue 16); flagged by tools/function_lengths.py in the
-/// issue-10 refactor, to be split with the next change to `edpm sweep`.
 pub fn sweep_cli(scenario: &Path, opts: &SweepOptions) -> anyhow::Result<()> {
     let axes = parse_axes(&opts.sets)?;
-    let swept: Vec<&Axis> = axes.iter().filter(|a| a.values.len() > 1).collect();
-    if swept.is_empty() {
+    if !axes.iter().any(|a| a.values.len() > 1) {
         bail!("--set: no key has several values (KEY=V1,V2,...): nothing to sweep");
     }
     if !(opts.average_after.is_finite()) {
@@ -196,10 +219,41 @@ pub fn sweep_cli(scenario: &Path, opts: &SweepOptions) -> anyhow::Result<()> {
     }
     std::fs::create_dir_all(&opts.out)
         .with_context(|| format!("creating {}", opts.out.display()))?;
-    let exe = std::env::current_exe().context("locating the edpm binary")?;
     let dirs: Vec<PathBuf> = (0..points.len())
         .map(|i| opts.out.join(format!("point-{i:03}")))
         .collect();
+    let results = run_points(scenario, &points, &dirs, opts)?;
+    write_tables(scenario, opts, &axes, &points, &dirs, &results)?;
+    let failed: Vec<String> = results
+        .iter()
+        .enumerate()
+        .filter_map(|(i, r)| r.error.as_ref().map(|e| format!("point-{i:03}: {e}")))
+        .collect();
+    eprintln!(
+        "edpm sweep: {} points; table in {} and sweep.md",
+        points.len(),
+        opts.out.join("sweep.csv").display()
+    );
+    if !failed.is_empty() {
+        bail!(
+            "{} of {} points failed (their rows say so): {}",
+            failed.len(),
+            points.len(),
+            failed.join("; ")
+        );
+    }
+    Ok(())
+}
+
+/// Runs every point, `opts.jobs` processes at once, reporting each as it
+/// finishes.
+fn run_points(
+    scenario: &Path,
+    points: &[Vec<String>],
+    dirs: &[PathBuf],
+    opts: &SweepOptions,
+) -> anyhow::Result<Vec<PointResult>> {
+    let exe = std::env::current_exe().context("locating the edpm binary")?;
     let results: Vec<Mutex<Option<PointResult>>> =
         points.iter().map(|_| Mutex::new(None)).collect();
     let next = AtomicUsize::new(0);
@@ -226,15 +280,27 @@ pub fn sweep_cli(scenario: &Path, opts: &SweepOptions) -> anyhow::Result<()> {
             });
         }
     });
-    let results: Vec<PointResult> = results
+    Ok(results
         .into_iter()
         .map(|m| {
             m.into_inner()
                 .expect("no panics while holding the lock")
                 .expect("every point ran")
         })
-        .collect();
+        .collect())
+}
 
+/// `sweep.csv` and `sweep.md`: one row per point with its swept values,
+/// status, wall time and the chosen columns.
+fn write_tables(
+    scenario: &Path,
+    opts: &SweepOptions,
+    axes: &[Axis],
+    points: &[Vec<String>],
+    dirs: &[PathBuf],
+    results: &[PointResult],
+) -> anyhow::Result<()> {
+    let swept: Vec<&Axis> = axes.iter().filter(|a| a.values.len() > 1).collect();
     let mut columns: Vec<String> = if opts.columns.is_empty() {
         DEFAULT_COLUMNS.iter().map(|c| c.to_string()).collect()
     } else {
@@ -248,17 +314,16 @@ pub fn sweep_cli(scenario: &Path, opts: &SweepOptions) -> anyhow::Result<()> {
     header.extend(["status".into(), "wall_seconds".into()]);
     header.extend(columns.iter().cloned());
     let mut rows: Vec<Vec<String>> = Vec::new();
-    for (i, (dir, r)) in dirs.iter().zip(&results).enumerate() {
+    for (i, (dir, r)) in dirs.iter().zip(results).enumerate() {
         let summary: serde_json::Value = std::fs::read_to_string(dir.join("summary.json"))
             .ok()
             .and_then(|t| serde_json::from_str(&t).ok())
             .unwrap_or(serde_json::Value::Null);
         let mut row = vec![format!("point-{i:03}")];
-        let values = &points[i];
         for a in &swept {
             let prefix = format!("{}=", a.key);
             row.push(
-                values
+                points[i]
                     .iter()
                     .find_map(|v| v.strip_prefix(&prefix))
                     .unwrap_or_default()
@@ -320,26 +385,7 @@ pub fn sweep_cli(scenario: &Path, opts: &SweepOptions) -> anyhow::Result<()> {
             md += &format!("\npoint-{i:03} failed: {e}\n");
         }
     }
-    write_atomic(&opts.out.join("sweep.md"), md.as_bytes())?;
-    let failed: Vec<String> = results
-        .iter()
-        .enumerate()
-        .filter_map(|(i, r)| r.error.as_ref().map(|e| format!("point-{i:03}: {e}")))
-        .collect();
-    eprintln!(
-        "edpm sweep: {} points; table in {} and sweep.md",
-        points.len(),
-        opts.out.join("sweep.csv").display()
-    );
-    if !failed.is_empty() {
-        bail!(
-            "{} of {} points failed (their rows say so): {}",
-            failed.len(),
-            points.len(),
-            failed.join("; ")
-        );
-    }
-    Ok(())
+    write_atomic(&opts.out.join("sweep.md"), md.as_bytes())
 }
 
 /// Integers as integers, other numbers with full precision.
@@ -377,6 +423,9 @@ mod tests {
         assert_eq!(g[0], ["a=1", "b=x", "c=3"]);
         assert_eq!(g[1], ["a=1", "b=x", "c=4"]);
         assert_eq!(g[5], ["a=2", "b=x", "c=5"]);
+        // {KEY} takes the point's value of another key.
+        let axes = parse_axes(&["u=1,2".into(), "v=[0,{u},0]".into()]).unwrap();
+        assert_eq!(grid(&axes)[1], ["u=2", "v=[0,2,0]"]);
     }
 
     #[test]

@@ -672,11 +672,19 @@ fn readme_first_command_runs_gas_coupled_and_draws_a_picture() {
     let mut lines = text.lines();
     let header: Vec<&str> = lines.next().unwrap().split(',').collect();
     let last: Vec<&str> = lines.last().unwrap().split(',').collect();
-    for count in ["particles", "pair_collisions", "wall_collisions", "collapse_reports"] {
+    for count in [
+        "particles",
+        "pair_collisions",
+        "wall_collisions",
+        "collapse_reports",
+    ] {
         let c = header.iter().position(|h| *h == count).unwrap();
         assert!(last[c].parse::<u64>().is_ok(), "{count} = {:?}", last[c]);
     }
-    assert_eq!(last[header.iter().position(|h| *h == "particles").unwrap()], "2400");
+    assert_eq!(
+        last[header.iter().position(|h| *h == "particles").unwrap()],
+        "2400"
+    );
 }
 
 #[test]

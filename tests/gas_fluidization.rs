@@ -7,7 +7,7 @@
 //!   time-averaged pressure drop is within 5 % of the bed weight per area.
 //! - `umf_defluidization_matches_ergun` (ignored, about 3 min): a reduced
 //!   defluidization sweep; u_mf within 10 % of Ergun's estimate at the bed's
-//!   measured packed gas fraction. The full sweep is `tools/umf_sweep.py`
+//!   measured packed gas fraction. The full sweep is `edpm sweep` with `tools/umf_fit.py` (results/fluidization/README.md)
 //!   (results/fluidization/).
 
 use std::path::{Path, PathBuf};
@@ -292,7 +292,7 @@ fn collapse(bed: &Bed, checkpoint: &Path, u: f64, t_end: f64, window: f64) -> (f
 /// `umf_ergun` at the packed gas fraction measured from the bed height
 /// (mean of the three runs). Wen–Yu is printed for information: it implies
 /// ε_mf ≈ 0.39, while these low-friction hard spheres pack to ≈ 0.38. The
-/// full sweep is `tools/umf_sweep.py`.
+/// full sweep is `edpm sweep` with `tools/umf_fit.py` (results/fluidization/README.md).
 #[test]
 #[ignore]
 fn umf_defluidization_matches_ergun() {

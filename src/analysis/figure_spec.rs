@@ -73,7 +73,10 @@ pub const FIGURES: &[FigureSpec] = &[
         y: &[
             ("T_m2_s2", "translational, about each cell's mean velocity"),
             ("T_rot_m2_s2", "rotational"),
-            ("T_global_m2_s2", "translational, about the mean of all particles"),
+            (
+                "T_global_m2_s2",
+                "translational, about the mean of all particles",
+            ),
         ],
         title: "granular temperature",
         x_label: "time (s)",
@@ -164,7 +167,10 @@ pub const FIGURES: &[FigureSpec] = &[
         // The first column is the measurement, the others predictions.
         y: &[
             ("pc_measured_Pa", "measured"),
-            ("pc_ktgf_Pa", "KTGF, Carnahan–Starling (3D) or Henderson (2D) g0"),
+            (
+                "pc_ktgf_Pa",
+                "KTGF, Carnahan–Starling (3D) or Henderson (2D) g0",
+            ),
             ("pc_ktgf_ma_Pa", "KTGF, Ma–Ahmadi g0 (Table 5)"),
         ],
         title: "collisional pressure against kinetic theory (cells without TC or guard)",
