@@ -374,7 +374,25 @@ pub(super) fn check(ctx: &Ctx, s: &Scenario) -> R<Vec<String>> {
         }
     }
 
-    // ---- inlet capacity: a flow step can at most fill the inlet zone
+    check_inlet_capacity(ctx, s)?;
+
+    // ---- gas: particles against cells, inflow Courant number, densities
+    if let Some(gas) = &s.gas {
+        check_gas(ctx, s, gas, &mut warnings)?;
+    }
+
+    // ---- memory
+    if let Some(m) = scenario_memory(s) {
+        check_memory(ctx, &m, memory_field(s, &m))?;
+    }
+    Ok(warnings)
+}
+
+/// The inlet's feed against what its zone can hold: a flow step can at most
+/// fill the inlet zone to a dense packing, and a 3D-equivalent feed must be
+/// a conveyed suspension.
+fn check_inlet_capacity(ctx: &Ctx, s: &Scenario) -> R<()> {
+    let dt = s.time.dt_flow;
     if let (Some(rate), Some(inlet)) = (s.inlet_mass_rate(), &s.boundaries.inlet) {
         let density = inlet
             .population
@@ -407,17 +425,7 @@ pub(super) fn check(ctx: &Ctx, s: &Scenario) -> R<Vec<String>> {
             ));
         }
     }
-
-    // ---- gas: particles against cells, inflow Courant number, densities
-    if let Some(gas) = &s.gas {
-        check_gas(ctx, s, gas, &mut warnings)?;
-    }
-
-    // ---- memory
-    if let Some(m) = scenario_memory(s) {
-        check_memory(ctx, &m, memory_field(s, &m))?;
-    }
-    Ok(warnings)
+    Ok(())
 }
 
 /// The memory a run of `s` needs at most (bytes), as validation checks it:

@@ -47,52 +47,7 @@ pub fn resolved_toml(s: &Scenario) -> String {
     w.key("planar", s.domain.planar.to_string(), "");
     w.key("gravity", vec3(s.domain.gravity), "m/s²");
 
-    // ---- boundaries
-    let b = &s.boundaries;
-    w.table("boundaries");
-    for (a, axis) in b.axes.iter().enumerate() {
-        match axis {
-            AxisBoundary::Walls => w.key(AXES[a], quote("walls"), ""),
-            AxisBoundary::Periodic => w.key(AXES[a], quote("periodic"), ""),
-            AxisBoundary::Frozen => {
-                w.comment(&format!("{}: none (planar mode: the bed depth)", AXES[a]))
-            }
-        }
-    }
-    match b.wall_material {
-        Some(m) => w.key("wall_material", quote(&s.materials[m as usize].name), ""),
-        None => w.comment("wall_material: none (no walls)"),
-    }
-    if let Some(o) = b.outlet {
-        w.table("boundaries.outlet");
-        w.key("axis", quote(AXES[o.axis]), "");
-        let mode = match o.mode {
-            super::OutletMode::Remove => "remove",
-            super::OutletMode::Reinsert => "reinsert",
-        };
-        w.key("mode", quote(mode), "");
-    }
-    if let Some(inlet) = &b.inlet {
-        w.table("boundaries.inlet");
-        if let Some(flux) = inlet.solids_flux {
-            w.key("solids_flux", float(flux), "kg/(m² s)");
-        }
-        match inlet.flux_basis {
-            FluxBasis::Slab => w.key("flux_basis", quote("slab"), ""),
-            FluxBasis::ThreeDEquivalent { reference_velocity } => {
-                w.key("flux_basis", quote("3d-equivalent"), "");
-                w.key("reference_velocity", float(reference_velocity), "m/s");
-            }
-        }
-        w.key("velocity", vec3(inlet.velocity), "m/s");
-        w.key("zone_height", float(inlet.zone_height), "m");
-        if let Some(k) = inlet.population {
-            w.key("population", quote(&s.populations[k].name), "");
-        }
-        if let Some(rate) = s.inlet_mass_rate() {
-            w.comment(&format!("derived: solids mass inflow {rate:.4e} kg/s"));
-        }
-    }
+    write_boundaries(&mut w, s);
 
     // ---- materials
     for m in &s.materials {
@@ -194,7 +149,66 @@ pub fn resolved_toml(s: &Scenario) -> String {
         "fraction of the largest diameter",
     );
 
-    // ---- output
+    write_output(&mut w, s);
+
+    // ---- gas
+    if let Some(g) = &s.gas {
+        write_gas(&mut w, s, g);
+    }
+    w.out
+}
+
+/// `[boundaries]`: each axis, walls with their material, inlet and outlet.
+fn write_boundaries(w: &mut Writer, s: &Scenario) {
+    let b = &s.boundaries;
+    w.table("boundaries");
+    for (a, axis) in b.axes.iter().enumerate() {
+        match axis {
+            AxisBoundary::Walls => w.key(AXES[a], quote("walls"), ""),
+            AxisBoundary::Periodic => w.key(AXES[a], quote("periodic"), ""),
+            AxisBoundary::Frozen => {
+                w.comment(&format!("{}: none (planar mode: the bed depth)", AXES[a]))
+            }
+        }
+    }
+    match b.wall_material {
+        Some(m) => w.key("wall_material", quote(&s.materials[m as usize].name), ""),
+        None => w.comment("wall_material: none (no walls)"),
+    }
+    if let Some(o) = b.outlet {
+        w.table("boundaries.outlet");
+        w.key("axis", quote(AXES[o.axis]), "");
+        let mode = match o.mode {
+            super::OutletMode::Remove => "remove",
+            super::OutletMode::Reinsert => "reinsert",
+        };
+        w.key("mode", quote(mode), "");
+    }
+    if let Some(inlet) = &b.inlet {
+        w.table("boundaries.inlet");
+        if let Some(flux) = inlet.solids_flux {
+            w.key("solids_flux", float(flux), "kg/(m² s)");
+        }
+        match inlet.flux_basis {
+            FluxBasis::Slab => w.key("flux_basis", quote("slab"), ""),
+            FluxBasis::ThreeDEquivalent { reference_velocity } => {
+                w.key("flux_basis", quote("3d-equivalent"), "");
+                w.key("reference_velocity", float(reference_velocity), "m/s");
+            }
+        }
+        w.key("velocity", vec3(inlet.velocity), "m/s");
+        w.key("zone_height", float(inlet.zone_height), "m");
+        if let Some(k) = inlet.population {
+            w.key("population", quote(&s.populations[k].name), "");
+        }
+        if let Some(rate) = s.inlet_mass_rate() {
+            w.comment(&format!("derived: solids mass inflow {rate:.4e} kg/s"));
+        }
+    }
+}
+
+/// `[output]`: intervals, picture frames and the tally grid.
+fn write_output(w: &mut Writer, s: &Scenario) {
     let o = &s.output;
     w.table("output");
     w.key("sample_interval", float(o.sample_interval), "s");
@@ -221,12 +235,6 @@ pub fn resolved_toml(s: &Scenario) -> String {
             ""
         },
     );
-
-    // ---- gas
-    if let Some(g) = &s.gas {
-        write_gas(&mut w, s, g);
-    }
-    w.out
 }
 
 /// `[collisions]`: when every pair of materials has parameters, the most
