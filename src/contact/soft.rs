@@ -566,9 +566,24 @@ impl SoftSphere {
 pub enum Partner {
     /// Another sphere of the slice, by index.
     Sphere(usize),
+    /// Another sphere of the slice seen through a periodic image: at its
+    /// position plus `shift` (m).
+    Image { index: usize, shift: DVec3 },
     /// A fixed plane wall through `point` with unit `normal` pointing into
     /// the domain (towards the sphere).
     Wall { point: DVec3, normal: DVec3 },
+}
+
+impl Partner {
+    /// The partner's index and the shift of its image (m), for a sphere.
+    #[inline]
+    pub fn sphere(&self) -> Option<(usize, DVec3)> {
+        match *self {
+            Partner::Sphere(b) => Some((b, DVec3::ZERO)),
+            Partner::Image { index, shift } => Some((index, shift)),
+            Partner::Wall { .. } => None,
+        }
+    }
 }
 
 /// State carried by a contact from one step to the next.
@@ -692,9 +707,10 @@ fn geometry(spheres: &[SoftSphere], a: usize, partner: &Partner, back: f64) -> (
     let sa = &spheres[a];
     let pa = sa.pos - back * sa.vel;
     match *partner {
-        Partner::Sphere(b) => {
+        Partner::Sphere(_) | Partner::Image { .. } => {
+            let (b, shift) = partner.sphere().unwrap_or_default();
             let sb = &spheres[b];
-            let d = pa - (sb.pos - back * sb.vel);
+            let d = pa - (sb.pos + shift - back * sb.vel);
             let dist = d.length();
             let n = if dist > 0.0 { d / dist } else { DVec3::X };
             (n, sa.radius + sb.radius - dist)
@@ -791,7 +807,7 @@ fn apply(spheres: &mut [SoftSphere], c: &SoftContact, n: DVec3, j: DVec3, j_t: D
     let sa = &mut spheres[c.a];
     sa.vel += j * sa.inv_mass;
     sa.omega -= sa.radius * sa.inv_inertia() * n.cross(j_t);
-    if let Partner::Sphere(b) = c.partner {
+    if let Some((b, _)) = c.partner.sphere() {
         let sb = &mut spheres[b];
         sb.vel -= j * sb.inv_mass;
         sb.omega -= sb.radius * sb.inv_inertia() * n.cross(j_t);
@@ -840,9 +856,9 @@ fn evaluate(spheres: &mut [SoftSphere], c: &mut SoftContact, dt: f64) {
         (s, n_prev)
     };
     let sa = &spheres[c.a];
-    let (drift_b, pred_b) = match c.partner {
-        Partner::Sphere(b) => (body(&spheres[b], false), body(&spheres[b], true)),
-        Partner::Wall { .. } => (Body::WALL, Body::WALL),
+    let (drift_b, pred_b) = match c.partner.sphere() {
+        Some((b, _)) => (body(&spheres[b], false), body(&spheres[b], true)),
+        None => (Body::WALL, Body::WALL),
     };
     let inv_m_ab = sa.inv_mass + drift_b.inv_mass;
     let n_mid = (n_old + n).normalize_or(n);
@@ -900,7 +916,7 @@ fn evaluate(spheres: &mut [SoftSphere], c: &mut SoftContact, dt: f64) {
     let sa = &mut spheres[c.a];
     sa.force += force;
     sa.torque -= sa.radius * spin;
-    if let Partner::Sphere(b) = c.partner {
+    if let Some((b, _)) = c.partner.sphere() {
         let sb = &mut spheres[b];
         sb.force -= force;
         sb.torque -= sb.radius * spin;

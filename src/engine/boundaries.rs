@@ -38,7 +38,12 @@ impl<Q: EventQueue> Engine<Q> {
             if !(pos.is_finite() && k.vel.is_finite() && self.omega[i].is_finite()) {
                 return Some(bad(None));
             }
-            let tol = 1e-6 * k.radius;
+            // Soft spheres overlap walls: only the centre must stay inside.
+            let tol = if self.soft.is_some() {
+                k.radius
+            } else {
+                1e-6 * k.radius
+            };
             for axis in 0..3 {
                 let (lo, hi) = (self.domain.lo[axis], self.domain.hi[axis]);
                 let x = pos[axis];

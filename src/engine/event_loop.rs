@@ -34,7 +34,13 @@ impl<Q: EventQueue> Engine<Q> {
     /// events (inelastic collapse, or a contact the event loop cannot
     /// resolve): then [`Engine::stall`] is set, the clock stays where it
     /// stopped, and this and every later call return at once.
+    ///
+    /// Soft spheres move by soft steps instead (`soft_stepper`).
     pub fn advance(&mut self, dt: f64) {
+        if self.soft.is_some() {
+            self.soft_advance(dt);
+            return;
+        }
         if self.stall.is_some() {
             return;
         }

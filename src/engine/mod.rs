@@ -20,6 +20,7 @@ mod dynamics;
 mod event_loop;
 mod neighbour_search;
 mod records;
+mod soft_stepper;
 mod store;
 
 pub use dynamics::ParticleDynamics;
@@ -27,8 +28,10 @@ pub use records::{
     BadParticle, CollapseReport, CollisionRecord, Counters, ElasticRule, Partner, Record,
     StallReport, State,
 };
+pub use soft_stepper::SoftStats;
 pub use store::ParticleView;
 
+use soft_stepper::{SOFT_START_OVERLAP, SoftStepper};
 use store::{Kinematics, SHELL_EXIT, Scheduled, Shell};
 
 use glam::DVec3;
@@ -61,6 +64,53 @@ pub struct EngineConfig {
     pub seed: u64,
     /// How collision partners are found.
     pub neighbours: NeighbourSearch,
+    /// Which contact model moves the particles.
+    pub model: ContactModel,
+    /// Soft-sphere settings (used when `model` is not `Hard`).
+    pub soft: SoftConfig,
+}
+
+/// The contact model of a run (`[engine] model`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ContactModel {
+    /// Event-driven hard spheres (seed 001 Sec. 4).
+    #[default]
+    Hard,
+    /// Soft spheres (DEM) for the whole system: linear spring–dashpot with
+    /// Coulomb friction (seed 001 Eq. 22–32), second-order time steps
+    /// between flow steps ([`crate::contact::soft::step`]).
+    Soft,
+    /// Event-driven where collisions are binary, soft where they are not.
+    Hybrid,
+}
+
+/// Soft-sphere settings of the engine (SI units).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct SoftConfig {
+    /// Normal stiffness `k_n` (N/m), the same for every pair and wall.
+    pub k_n: f64,
+    /// Shortest contact duration (s) of the system, from which `dt_max`
+    /// follows (reported only).
+    pub contact_time: f64,
+    /// Largest soft time step (s): the shortest contact time over the
+    /// steps per contact. A flow step is cut into equal steps no longer.
+    pub dt_max: f64,
+    /// Uniform acceleration integrated with the contact forces (m/s²):
+    /// gravity without gas (the run then gives no gravity kicks), zero with
+    /// gas (gravity is part of the gas kicks).
+    pub gravity: DVec3,
+}
+
+impl Default for SoftConfig {
+    fn default() -> Self {
+        SoftConfig {
+            k_n: 0.0,
+            contact_time: 0.0,
+            dt_max: f64::INFINITY,
+            gravity: DVec3::ZERO,
+        }
+    }
 }
 
 /// How the engine bounds the search for collision partners.
@@ -107,6 +157,8 @@ impl Default for EngineConfig {
             inlet: None,
             seed: 0,
             neighbours: NeighbourSearch::Lists,
+            model: ContactModel::Hard,
+            soft: SoftConfig::default(),
         }
     }
 }
@@ -191,11 +243,15 @@ pub struct Engine<Q: EventQueue> {
     pub collapse_reports: Vec<CollapseReport>,
     /// Set when the watchdog stopped the event loop.
     stall: Option<StallReport>,
+    /// Soft-sphere state; `None` for hard spheres.
+    soft: Option<SoftStepper>,
+    pub soft_stats: SoftStats,
 }
 
 impl<Q: EventQueue> Engine<Q> {
     /// Builds the engine at time 0. Fails on particles outside the domain,
-    /// overlapping pairs (beyond 1e-10 of a diameter), unknown materials or
+    /// overlapping pairs (beyond 1e-10 of a diameter; soft spheres: 5 %),
+    /// unknown materials or
     /// non-planar data in planar mode.
     pub fn new(
         domain: Domain,
@@ -263,6 +319,37 @@ impl<Q: EventQueue> Engine<Q> {
             *s = domain.image_shift(code as u32);
         }
         let rough = !materials.all_smooth();
+        let soft = match config.model {
+            ContactModel::Hard => None,
+            ContactModel::Soft => {
+                let c = config.soft;
+                if !(c.k_n > 0.0 && c.k_n.is_finite() && c.dt_max > 0.0 && c.gravity.is_finite()) {
+                    return Err(EngineError::Config(format!(
+                        "soft spheres need k_n > 0 N/m and a time step > 0 s, got {} N/m and {} s",
+                        c.k_n, c.dt_max
+                    )));
+                }
+                if config.neighbours != NeighbourSearch::Lists {
+                    return Err(EngineError::Config(
+                        "soft spheres find their contacts through neighbour lists".into(),
+                    ));
+                }
+                Some(
+                    SoftStepper::new(&materials, c)
+                        .map_err(|e| EngineError::Config(format!("soft spheres: {e}")))?,
+                )
+            }
+            ContactModel::Hybrid => {
+                return Err(EngineError::Config(
+                    "the hybrid model is not implemented yet".into(),
+                ));
+            }
+        };
+        let start_overlap = if soft.is_some() {
+            SOFT_START_OVERLAP
+        } else {
+            1e-10
+        };
         let n = particles.len();
         let mut engine = Engine {
             cells: CellGrid::new(domain.lo, domain.hi, cell_width, periodic, n),
@@ -301,6 +388,8 @@ impl<Q: EventQueue> Engine<Q> {
             records: Vec::new(),
             collapse_reports: Vec::new(),
             stall: None,
+            soft,
+            soft_stats: SoftStats::default(),
         };
         if engine.config.neighbours == NeighbourSearch::Cells {
             let dims = engine.cells.dims();
@@ -329,7 +418,7 @@ impl<Q: EventQueue> Engine<Q> {
                 let code = image.unwrap_or_else(|| engine.domain.image_code(d));
                 let sigma = ri + engine.kin[j].radius;
                 let overlap = sigma - (d + engine.image_shift[code as usize]).length();
-                if overlap > 1e-10 * sigma && worst.is_none_or(|w| overlap > w.1) {
+                if overlap > start_overlap * sigma && worst.is_none_or(|w| overlap > w.1) {
                     worst = Some((j, overlap));
                 }
             });
@@ -476,6 +565,16 @@ impl<Q: EventQueue> Engine<Q> {
 
     pub fn is_empty(&self) -> bool {
         self.len() == 0
+    }
+
+    /// The contact model in use.
+    pub fn model(&self) -> ContactModel {
+        self.config.model
+    }
+
+    /// Soft-sphere settings, unless the model is hard.
+    pub fn soft_config(&self) -> Option<SoftConfig> {
+        (self.config.model != ContactModel::Hard).then_some(self.config.soft)
     }
 
     /// Whether rotation is being tracked (some contact is rough).

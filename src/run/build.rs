@@ -8,7 +8,10 @@ use rand_xoshiro::Xoshiro256PlusPlus;
 
 use crate::collision::ContactParams;
 use crate::domain::Domain;
-use crate::engine::{Engine, EngineConfig, InletZone, NeighbourSearch, auto_neighbour_search};
+use crate::engine::{
+    ContactModel, Engine, EngineConfig, InletZone, NeighbourSearch, SoftConfig,
+    auto_neighbour_search,
+};
 use crate::io::output::Checkpoint;
 use crate::materials::MaterialTable;
 use crate::particles::NewParticle;
@@ -85,6 +88,8 @@ pub fn build_engine<Q: EventQueue>(s: &Scenario) -> anyhow::Result<Engine<Q>> {
         inlet,
         seed: s.seed ^ 0x9e37_79b9_7f4a_7c15,
         neighbours: neighbour_search(s, &particles, r_max),
+        model: s.engine.model,
+        soft: soft_config(s, &particles)?,
     };
     Engine::with_capacity_for_radius(
         engine_domain(s),
@@ -96,12 +101,42 @@ pub fn build_engine<Q: EventQueue>(s: &Scenario) -> anyhow::Result<Engine<Q>> {
     .with_context(|| format!("{}: building the initial state", s.name))
 }
 
+/// Soft-sphere settings of the engine: stiffness and time step from
+/// [`Scenario::soft_derived`] (also for the initial particles, which may
+/// come from a checkpoint); gravity is integrated by the soft steps
+/// without gas and is part of the gas kicks with gas. Defaults for hard
+/// spheres.
+pub fn soft_config(s: &Scenario, particles: &[NewParticle]) -> anyhow::Result<SoftConfig> {
+    if s.engine.model == ContactModel::Hard {
+        return Ok(SoftConfig::default());
+    }
+    let table = material_table(s);
+    let sizes = particles
+        .iter()
+        .map(|p| (table.sphere_mass(p.material, p.radius), 2.0 * p.radius));
+    let derived = s
+        .soft_derived(sizes)
+        .map_err(|e| anyhow::anyhow!("{}: engine.soft: {e}", s.name))?;
+    Ok(SoftConfig {
+        k_n: derived.k_n,
+        contact_time: derived.contact_time,
+        dt_max: derived.dt_max,
+        gravity: if s.gas.is_none() {
+            s.domain.gravity
+        } else {
+            DVec3::ZERO
+        },
+    })
+}
+
 /// The neighbour search for a scenario: as chosen, or for `auto` the rule
 /// of [`auto_neighbour_search`] applied to the initial solids fraction.
 fn neighbour_search(s: &Scenario, particles: &[NewParticle], r_max: f64) -> NeighbourSearch {
     match s.engine.neighbours {
         NeighbourChoice::Lists => NeighbourSearch::Lists,
         NeighbourChoice::Cells => NeighbourSearch::Cells,
+        // Soft contacts are found through the lists.
+        NeighbourChoice::Auto if s.engine.model != ContactModel::Hard => NeighbourSearch::Lists,
         NeighbourChoice::Auto => {
             let solids: f64 = particles
                 .iter()

@@ -29,7 +29,9 @@ pub use build::{build_engine, engine_domain, material_table};
 use feeder::InletFeeder;
 use recorders::{Recorder, RunEnd, StepEnd};
 
-use crate::engine::{CollapseReport, Counters, Engine, NeighbourSearch};
+use crate::engine::{
+    CollapseReport, ContactModel, Counters, Engine, NeighbourSearch, SoftConfig, SoftStats,
+};
 use crate::gas::flow::{GasRun, GasTotals};
 use crate::io::output::write_atomic;
 use crate::queue::{CalendarQueue, EventQueue, IndexedHeap, QueueKind, ReferenceQueue};
@@ -104,6 +106,19 @@ pub struct Summary {
     /// Neighbour-shell thickness used (m).
     pub skin: f64,
     pub rotation_tracked: bool,
+    /// `[engine] model`.
+    pub model: ContactModel,
+    /// Particles moved by soft steps, summed over the soft steps.
+    pub soft_particle_steps: u64,
+    /// Fraction of the particle-time spent soft.
+    pub soft_fraction: f64,
+    /// Largest soft contact overlap over the pair's mean diameter (a wall
+    /// contact: over the particle's diameter); 0 for hard spheres.
+    pub max_overlap_rel: f64,
+    /// Soft-sphere stiffness and time step (null for hard spheres).
+    pub soft: Option<SoftConfig>,
+    /// What the soft steps did (null for hard spheres).
+    pub soft_stats: Option<SoftStats>,
     pub particles_initial: usize,
     pub particles_final: usize,
     pub counters: Counters,
@@ -309,7 +324,7 @@ impl<Q: EventQueue> FlowLoop<'_, Q> {
                     diagnose::gas_failure_causes(g, dt)
                 );
             }
-        } else if gravity != DVec3::ZERO {
+        } else if gravity != DVec3::ZERO && !self.engine.integrates_gravity() {
             self.kick_all(gravity * (kick * dt))?;
         }
         if self.forces
@@ -362,6 +377,7 @@ impl<Q: EventQueue> FlowLoop<'_, Q> {
         if s.time.splitting == Splitting::SecondOrder
             && gravity != DVec3::ZERO
             && self.gas.is_none()
+            && !self.engine.integrates_gravity()
         {
             self.kick_all(gravity * (0.5 * dt))?;
         }
@@ -383,6 +399,12 @@ fn simulate<Q: EventQueue>(
     let wall_start = Instant::now();
     let cpu_start = crate::timing::cpu_time();
     let mut engine = build_engine::<Q>(s)?;
+    if opts.log.is_some() && s.engine.model != ContactModel::Hard {
+        anyhow::bail!(
+            "{}: event logs (--log) of soft and hybrid runs are not supported yet: soft steps are not logged",
+            s.name
+        );
+    }
     let mut gas = GasRun::new(s);
     if let Some(g) = gas.as_mut() {
         if opts.log.is_some() {
@@ -438,6 +460,12 @@ fn simulate<Q: EventQueue>(
         neighbours: engine.neighbour_search(),
         skin: engine.skin(),
         rotation_tracked: engine.is_rough(),
+        model: engine.model(),
+        soft_particle_steps: engine.soft_stats.particle_steps,
+        soft_fraction: engine.soft_stats.soft_fraction(),
+        max_overlap_rel: engine.soft_stats.max_overlap_rel,
+        soft: engine.soft_config(),
+        soft_stats: engine.soft_config().map(|_| engine.soft_stats),
         particles_initial,
         particles_final: engine.len(),
         counters: engine.counters,

@@ -18,6 +18,7 @@ mod locate;
 mod overrides;
 mod raw;
 mod resolved;
+mod soft;
 mod validate;
 
 use std::path::{Path, PathBuf};
@@ -29,6 +30,7 @@ use crate::collision::ContactParams;
 pub use diameter::Diameter;
 pub(crate) use diameter::gaussian;
 pub use resolved::resolved_toml;
+pub use soft::SoftDerived;
 pub(crate) use validate::scenario_error;
 
 /// Line and column (both 1-based, column in characters) in the scenario text.
@@ -353,7 +355,37 @@ pub struct EngineSettings {
     /// Neighbour-shell thickness as a fraction of the largest diameter,
     /// in (0, 2].
     pub skin: f64,
+    /// `model`: hard spheres (default), soft spheres or the hybrid.
+    pub model: crate::engine::ContactModel,
+    /// `[engine.soft]`: used unless `model` is hard.
+    pub soft: SoftSettings,
 }
+
+/// `[engine.soft]`: stiffness and time step of the soft-sphere model.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SoftSettings {
+    pub stiffness: Stiffness,
+    /// Soft time steps per shortest contact time, >= 20 by default
+    /// ([`crate::contact::soft::DEFAULT_STEPS_PER_CONTACT`]).
+    pub steps_per_contact: u32,
+}
+
+/// How the normal stiffness `k_n` is given.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Stiffness {
+    /// `k_n` (N/m).
+    Direct(f64),
+    /// The largest overlap, as a fraction of the heaviest particle's
+    /// diameter, of that particle hitting a wall at `impact_speed` (m/s)
+    /// with the largest `e_n` of the table; `k_n` is derived
+    /// ([`Scenario::soft_stiffness`]). Pairs overlap less.
+    Overlap { max_overlap: f64, impact_speed: f64 },
+}
+
+/// Default `[engine.soft] max_overlap` (fraction of a diameter).
+pub const DEFAULT_SOFT_MAX_OVERLAP: f64 = 0.01;
+/// Default `[engine.soft] impact_speed` (m/s).
+pub const DEFAULT_SOFT_IMPACT_SPEED: f64 = 1.0;
 
 /// `[output]`.
 #[derive(Clone, Debug, PartialEq)]

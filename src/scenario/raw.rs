@@ -167,6 +167,18 @@ pub(super) struct RawEngine {
     pub queue: Option<crate::queue::QueueKind>,
     pub skin: Option<f64>,
     pub neighbours: Option<super::NeighbourChoice>,
+    pub model: Option<crate::engine::ContactModel>,
+    pub soft: Option<RawSoft>,
+}
+
+/// `[engine.soft]`.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct RawSoft {
+    pub k_n: Option<f64>,
+    pub max_overlap: Option<f64>,
+    pub impact_speed: Option<f64>,
+    pub steps_per_contact: Option<RawInt>,
 }
 
 #[derive(Deserialize)]

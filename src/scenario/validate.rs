@@ -10,12 +10,13 @@ use super::ctx::Ctx;
 use super::diameter::{LOGNORMAL_MIN_MASS, lognormal_mass};
 use super::raw::{self, AxisName, RawAxis, RawDiameter, RawFluxBasis, RawScenario};
 use super::{
-    AxisBoundary, Boundaries, CollisionSettings, ContactTable, Diameter, Domain, EngineSettings,
-    FluxBasis, InitialState, Inlet, Material, NeighbourChoice, Outlet, OutletMode, OutputSettings,
-    Placement, Population, Region, Scenario, ScenarioError, Splitting, TimeSettings, limits,
-    overrides,
+    AxisBoundary, Boundaries, CollisionSettings, ContactTable, DEFAULT_SOFT_IMPACT_SPEED,
+    DEFAULT_SOFT_MAX_OVERLAP, Diameter, Domain, EngineSettings, FluxBasis, InitialState, Inlet,
+    Material, NeighbourChoice, Outlet, OutletMode, OutputSettings, Placement, Population, Region,
+    Scenario, ScenarioError, SoftSettings, Splitting, Stiffness, TimeSettings, limits, overrides,
 };
 use crate::collision::ContactParams;
+use crate::engine::ContactModel;
 
 /// Solids-fraction caps (see docs/scenario.md).
 /// 3D lattice: simple cubic packing with spacing d.
@@ -170,6 +171,17 @@ pub(crate) fn validate(ctx: &Ctx, raw: RawScenario) -> R<Scenario> {
 
     // ---- engine
     let engine = validate_engine(ctx, raw.engine)?;
+    if engine.model != ContactModel::Hard
+        && let Some(p) = contacts.params.iter().flatten().find(|p| p.e_n <= 0.0)
+    {
+        return Err(ctx.err(
+            "collisions",
+            format!(
+                "e_n = {:?}: the soft and hybrid models need e_n > 0 for every pair (e_n = 0 needs infinite damping in a spring-dashpot)",
+                p.e_n
+            ),
+        ));
+    }
 
     // ---- output
     let output = validate_output(ctx, raw.output.as_ref(), &time, planar)?;
@@ -893,22 +905,97 @@ fn validate_time(ctx: &Ctx, raw: &raw::RawTime) -> R<TimeSettings> {
     })
 }
 
-/// `[engine]`: queue, neighbour search and skin.
+/// `[engine]`: queue, neighbour search, skin, contact model and
+/// `[engine.soft]`.
 fn validate_engine(ctx: &Ctx, raw: Option<raw::RawEngine>) -> R<EngineSettings> {
-    let (queue, skin, neighbours) = match raw {
-        Some(e) => (e.queue, e.skin, e.neighbours),
-        None => (None, None, None),
+    let (queue, skin, neighbours, model, soft) = match raw {
+        Some(e) => (e.queue, e.skin, e.neighbours, e.model, e.soft),
+        None => (None, None, None, None, None),
     };
     let skin = skin.unwrap_or(DEFAULT_SKIN);
     if !(skin > 0.0 && skin <= 2.0) {
         return Err(ctx.err("engine.skin", format!("must be in (0, 2], got {skin:?}")));
     }
+    let model = model.unwrap_or_default();
+    let neighbours = neighbours.unwrap_or(NeighbourChoice::Auto);
+    if model != ContactModel::Hard && neighbours == NeighbourChoice::Cells {
+        return Err(ctx.err(
+            "engine.neighbours",
+            "must be \"auto\" or \"lists\" with a soft or hybrid model: soft contacts are found through the neighbour lists".to_string(),
+        ));
+    }
     Ok(EngineSettings {
         queue: queue.unwrap_or(crate::queue::QueueKind::Calendar),
         skin,
-        neighbours: neighbours.unwrap_or(NeighbourChoice::Auto),
+        neighbours,
+        model,
+        soft: validate_soft(ctx, soft)?,
     })
 }
+
+/// `[engine.soft]`: `k_n`, or `max_overlap` with `impact_speed` (not both),
+/// and `steps_per_contact`.
+fn validate_soft(ctx: &Ctx, raw: Option<raw::RawSoft>) -> R<SoftSettings> {
+    let Some(raw) = raw else {
+        return Ok(SoftSettings {
+            stiffness: Stiffness::Overlap {
+                max_overlap: DEFAULT_SOFT_MAX_OVERLAP,
+                impact_speed: DEFAULT_SOFT_IMPACT_SPEED,
+            },
+            steps_per_contact: crate::contact::soft::DEFAULT_STEPS_PER_CONTACT,
+        });
+    };
+    let stiffness = match (raw.k_n, raw.max_overlap, raw.impact_speed) {
+        (Some(k_n), None, None) => Stiffness::Direct(ctx.positive("engine.soft.k_n", k_n)?),
+        (Some(_), _, _) => {
+            return Err(ctx.err(
+                "engine.soft.k_n",
+                "give either k_n or max_overlap and impact_speed, not both".to_string(),
+            ));
+        }
+        (None, max_overlap, impact_speed) => {
+            let max_overlap = max_overlap.unwrap_or(DEFAULT_SOFT_MAX_OVERLAP);
+            if !(max_overlap > 0.0 && max_overlap <= 0.1) {
+                return Err(ctx.err(
+                    "engine.soft.max_overlap",
+                    format!(
+                        "must be in (0, 0.1] (a fraction of the diameter), got {max_overlap:?}"
+                    ),
+                ));
+            }
+            let impact_speed = ctx.positive(
+                "engine.soft.impact_speed",
+                impact_speed.unwrap_or(DEFAULT_SOFT_IMPACT_SPEED),
+            )?;
+            Stiffness::Overlap {
+                max_overlap,
+                impact_speed,
+            }
+        }
+    };
+    let steps_per_contact = match &raw.steps_per_contact {
+        Some(v) => {
+            let n = ctx.uint("engine.soft.steps_per_contact", v)?;
+            if !(MIN_STEPS_PER_CONTACT..=10_000).contains(&n) {
+                return Err(ctx.err(
+                    "engine.soft.steps_per_contact",
+                    format!("must be in [{MIN_STEPS_PER_CONTACT}, 10000], got {n}"),
+                ));
+            }
+            n as u32
+        }
+        None => crate::contact::soft::DEFAULT_STEPS_PER_CONTACT,
+    };
+    Ok(SoftSettings {
+        stiffness,
+        steps_per_contact,
+    })
+}
+
+/// Fewest soft time steps per contact accepted: below about 10 the
+/// restitution and overlap errors grow past several per cent
+/// (tests/soft_contact.rs measures 20 and more).
+const MIN_STEPS_PER_CONTACT: u64 = 10;
 
 /// `[output]`: sample and snapshot intervals (at least one flow step, a
 /// bounded number per run) and the tally grid.
