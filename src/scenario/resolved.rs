@@ -15,9 +15,11 @@ use std::fmt::Write;
 
 use glam::DVec3;
 
-use super::{AxisBoundary, Diameter, FluxBasis, NeighbourChoice, Placement, Scenario, Splitting};
+use super::{
+    AxisBoundary, Diameter, FluxBasis, NeighbourChoice, Placement, Scenario, Splitting, Stiffness,
+};
 use crate::collision::ContactParams;
-use crate::engine::NeighbourSearch;
+use crate::engine::{ContactModel, NeighbourSearch};
 use crate::gas::{
     DragLaw, GasConfig, GasFace, GasModel, PlanarPorosity, PorosityMapping, PressureSolverKind,
 };
@@ -148,6 +150,15 @@ pub fn resolved_toml(s: &Scenario) -> String {
         float(s.engine.skin),
         "fraction of the largest diameter",
     );
+    let model = match s.engine.model {
+        ContactModel::Hard => "hard",
+        ContactModel::Soft => "soft",
+        ContactModel::Hybrid => "hybrid",
+    };
+    w.key("model", quote(model), "");
+    if s.engine.model != ContactModel::Hard {
+        write_soft(&mut w, s);
+    }
 
     write_output(&mut w, s);
 
@@ -404,9 +415,44 @@ fn write_gas(w: &mut Writer, s: &Scenario, g: &GasConfig) {
     }
 }
 
+/// `[engine.soft]`, with the stiffness and time step it implies for the
+/// populations as comments.
+fn write_soft(w: &mut Writer, s: &Scenario) {
+    w.table("engine.soft");
+    match s.engine.soft.stiffness {
+        Stiffness::Direct(k_n) => w.key("k_n", float(k_n), "N/m"),
+        Stiffness::Overlap {
+            max_overlap,
+            impact_speed,
+        } => {
+            w.key(
+                "max_overlap",
+                float(max_overlap),
+                "fraction of the heaviest particle's diameter, against a wall",
+            );
+            w.key("impact_speed", float(impact_speed), "m/s");
+        }
+    }
+    w.key(
+        "steps_per_contact",
+        s.engine.soft.steps_per_contact.to_string(),
+        "",
+    );
+    match s.soft_derived(std::iter::empty()) {
+        Ok(d) => w.comment(&format!(
+            "derived from the populations: k_n = {:.6e} N/m, shortest contact time {:.6e} s, soft time step <= {:.6e} s",
+            d.k_n, d.contact_time, d.dt_max
+        )),
+        Err(e) => w.comment(&format!("derived: none ({e})")),
+    }
+}
+
 /// What `neighbours = "auto"` is expected to choose, from the populations'
 /// nominal solids fraction (the run decides from the particles it places).
 fn expected_neighbours(s: &Scenario) -> String {
+    if s.engine.model != ContactModel::Hard {
+        return "auto: lists (soft contacts are found through the neighbour lists)".into();
+    }
     if s.initial.checkpoint.is_some() {
         return "auto: decided when the run starts, from the checkpoint's particles".into();
     }

@@ -917,6 +917,12 @@ fn validate_engine(ctx: &Ctx, raw: Option<raw::RawEngine>) -> R<EngineSettings> 
         return Err(ctx.err("engine.skin", format!("must be in (0, 2], got {skin:?}")));
     }
     let model = model.unwrap_or_default();
+    if model == ContactModel::Hybrid {
+        return Err(ctx.err(
+            "engine.model",
+            "\"hybrid\" is not implemented yet; use \"hard\" or \"soft\"".to_string(),
+        ));
+    }
     let neighbours = neighbours.unwrap_or(NeighbourChoice::Auto);
     if model != ContactModel::Hard && neighbours == NeighbourChoice::Cells {
         return Err(ctx.err(
