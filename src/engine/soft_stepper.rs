@@ -307,7 +307,8 @@ impl<Q: EventQueue> Engine<Q> {
 
     /// After a soft step of `h` (s): counts the particle-steps, the
     /// contacts that began and the largest overlap, and adds the wall
-    /// forces to the wall impulses.
+    /// forces to the wall impulses (`Counters::wall_impulse`, momentum given
+    /// to each wall face).
     fn tally_contacts(&mut self, st: &mut SoftStepper, h: f64) {
         let moved = self.len() as u64;
         let stats = &mut self.soft_stats;
@@ -332,9 +333,16 @@ impl<Q: EventQueue> Engine<Q> {
                 }
             }
             *touching = s.touching;
-            if wall && s.touching {
+            if wall {
+                // The integrator gives the contact force F_k of step k for
+                // ½h at the end of step k and ½h at the start of step k + 1,
+                // plus ½h times the start/end correction of step k: summed
+                // over steps this is h F_k + ½h c_k per step (exact up to
+                // the ½h F of the last step, given at the next one).
+                let force = s.force_n * s.normal + s.force_t;
+                let correction = s.kick_correction_n * s.normal + s.kick_correction_t;
                 let face = (key.1 - WALL_KEY) as usize;
-                self.counters.wall_impulse[face] -= (s.force_n * s.normal + s.force_t) * h;
+                self.counters.wall_impulse[face] -= h * force + (0.5 * h) * correction;
             }
         }
     }
