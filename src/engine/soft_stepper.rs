@@ -381,6 +381,16 @@ impl<Q: EventQueue> Engine<Q> {
         }
     }
 
+    /// Fraction of the particles that soft steps move now (1 for the soft
+    /// model, 0 for hard spheres).
+    pub fn soft_fraction_now(&self) -> f64 {
+        if self.soft.is_some() && !self.is_empty() {
+            1.0
+        } else {
+            0.0
+        }
+    }
+
     /// Whether the soft steps integrate gravity (then the run must not
     /// also kick it).
     pub fn integrates_gravity(&self) -> bool {

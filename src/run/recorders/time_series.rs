@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use glam::DVec3;
 
 use super::{Recorder, RunEnd, StepEnd, due, next_multiple};
-use crate::engine::{Counters, Engine};
+use crate::engine::{ContactModel, Counters, Engine};
 use crate::gas::flow::{GAS_SERIES_HEADER, GasRun};
 use crate::io::output::CsvTable;
 use crate::queue::EventQueue;
@@ -44,6 +44,8 @@ pub struct TimeSeries {
     last_time: f64,
     /// Collapse reports already counted in a row.
     collapse_seen: usize,
+    /// Soft or hybrid model: a last column `soft_fraction`.
+    soft: bool,
 }
 
 impl TimeSeries {
@@ -57,6 +59,7 @@ impl TimeSeries {
             last: Counters::default(),
             last_time: 0.0,
             collapse_seen: 0,
+            soft: false,
         }
     }
 }
@@ -66,8 +69,12 @@ impl<Q: EventQueue> Recorder<Q> for TimeSeries {
         if let (Some(series), Some(g)) = (self.gas_series.as_mut(), gas) {
             series.row(&g.sample_row());
         }
+        if engine.model() != ContactModel::Hard {
+            self.soft = true;
+            self.series = CsvTable::new(&[&TIME_SERIES_HEADER[..], &["soft_fraction"]].concat());
+        }
         self.last = engine.counters;
-        sample_interval_row(engine, &mut self.series, &self.last, 0.0, 0);
+        sample_interval_row(engine, &mut self.series, &self.last, 0.0, 0, self.soft);
         Ok(())
     }
 
@@ -93,6 +100,7 @@ impl<Q: EventQueue> Recorder<Q> for TimeSeries {
             &self.last,
             t - self.last_time,
             new_reports,
+            self.soft,
         );
         if let (Some(series), Some(g)) = (self.gas_series.as_mut(), gas) {
             series.row(&g.sample_row());
@@ -116,13 +124,15 @@ impl<Q: EventQueue> Recorder<Q> for TimeSeries {
 /// pressure refer to the interval since the previous row. Pressures:
 /// kinetic `Σ m C² / (d V)` with `C` the velocity relative to the mean,
 /// collisional `Σ r_ab · J / (d V Δt)` (the collision virial), with `d`
-/// the number of moving dimensions and `V` the domain volume.
+/// the number of moving dimensions and `V` the domain volume. With `soft`,
+/// a last column: the fraction of the particles moved by soft steps.
 fn sample_interval_row<Q: EventQueue>(
     engine: &Engine<Q>,
     series: &mut CsvTable,
     last: &Counters,
     interval: f64,
     reports: usize,
+    soft: bool,
 ) {
     let c = &engine.counters;
     let (ke_t, ke_r) = engine.kinetic_energy();
@@ -155,7 +165,7 @@ fn sample_interval_row<Q: EventQueue>(
     } else {
         0.0
     };
-    series.row(&[
+    let row = [
         engine.time(),
         engine.len() as f64,
         (c.pair_collisions - last.pair_collisions) as f64,
@@ -173,5 +183,10 @@ fn sample_interval_row<Q: EventQueue>(
         centre.x,
         centre.y,
         centre.z,
-    ]);
+    ];
+    if soft {
+        series.row(&[&row[..], &[engine.soft_fraction_now()]].concat());
+    } else {
+        series.row(&row);
+    }
 }
