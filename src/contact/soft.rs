@@ -547,6 +547,16 @@ impl SoftSphere {
         }
     }
 
+    /// Sets the drift velocity and spin between [`open_step`] and
+    /// [`close_step`] (after an impulsive collision during the drift),
+    /// shifting the end-of-step predictions by the same change.
+    pub fn set_velocity(&mut self, vel: DVec3, omega: DVec3) {
+        self.pred_vel += vel - self.vel;
+        self.pred_omega += omega - self.omega;
+        self.vel = vel;
+        self.omega = omega;
+    }
+
     /// `1/I = 5/(2 m R²)` (1/(kg m²)).
     #[inline]
     fn inv_inertia(&self) -> f64 {
@@ -760,18 +770,41 @@ fn geometry(spheres: &[SoftSphere], a: usize, partner: &Partner, back: f64) -> (
 /// `force`/`torque` must hold the contact forces of the current state (zero
 /// if nothing overlaps), as left by the previous call.
 pub fn step(spheres: &mut [SoftSphere], contacts: &mut [SoftContact], gravity: DVec3, dt: f64) {
+    open_step(spheres, gravity, dt);
+    for s in spheres.iter_mut() {
+        s.pos += dt * s.vel;
+    }
+    close_step(spheres, contacts, gravity, dt);
+}
+
+/// The first part of [`step`] without the drift: the opening half kick
+/// `v ← v + ½dt a(t)` and the predictions for the end of the step; the
+/// forces are cleared. A caller that moves the spheres itself (the hybrid
+/// model's event loop) drifts them, then calls [`close_step`].
+pub fn open_step(spheres: &mut [SoftSphere], gravity: DVec3, dt: f64) {
     let half = 0.5 * dt;
     for s in spheres.iter_mut() {
         let acc = s.force * s.inv_mass + gravity;
         let alpha = s.torque * s.inv_inertia();
         s.vel += half * acc;
         s.omega += half * alpha;
-        s.pos += dt * s.vel;
         s.pred_vel = s.vel + half * acc;
         s.pred_omega = s.omega + half * alpha;
         s.force = DVec3::ZERO;
         s.torque = DVec3::ZERO;
     }
+}
+
+/// The last part of [`step`]: contact forces at the drifted positions and
+/// the closing half kick `v ← v + ½dt a(t+dt)` with the corrections of
+/// contacts that began or ended in the step.
+pub fn close_step(
+    spheres: &mut [SoftSphere],
+    contacts: &mut [SoftContact],
+    gravity: DVec3,
+    dt: f64,
+) {
+    let half = 0.5 * dt;
     for c in contacts.iter_mut() {
         evaluate(spheres, c, dt);
     }

@@ -4,7 +4,7 @@
 
 use glam::DVec3;
 
-use super::{BadParticle, Engine, Record};
+use super::{BadParticle, ContactModel, Engine, Record};
 use crate::domain::{AxisBoundary, Face, OutletMode};
 use crate::neighbours;
 use crate::particles::NewParticle;
@@ -39,11 +39,12 @@ impl<Q: EventQueue> Engine<Q> {
                 return Some(bad(None));
             }
             // Soft spheres overlap walls: only the centre must stay inside.
-            let tol = if self.soft.is_some() {
-                k.radius
-            } else {
-                1e-6 * k.radius
+            let soft = match self.config.model {
+                ContactModel::Hard => false,
+                ContactModel::Soft => true,
+                ContactModel::Hybrid => self.is_soft[i],
             };
+            let tol = if soft { k.radius } else { 1e-6 * k.radius };
             for axis in 0..3 {
                 let (lo, hi) = (self.domain.lo[axis], self.domain.hi[axis]);
                 let x = pos[axis];

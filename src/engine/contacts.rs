@@ -94,6 +94,9 @@ impl<Q: EventQueue> Engine<Q> {
         self.last_collision[i] = self.now;
         self.last_partner[i] = partner;
         self.step_collisions[i] = self.step_collisions[i].saturating_add(1);
+        if self.step_collisions[i] >= self.config.soft.hybrid_collisions && !self.is_soft[i] {
+            self.turn_soft(i);
+        }
     }
 
     #[inline]

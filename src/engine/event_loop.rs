@@ -6,7 +6,8 @@ use glam::DVec3;
 
 use super::store::{EventKind, Kinematics, SHELL_EXIT, Scheduled};
 use super::{
-    CollapseReport, CollisionRecord, Engine, NO_PARTNER, NeighbourSearch, Record, StallReport,
+    CollapseReport, CollisionRecord, ContactModel, Engine, NO_PARTNER, NeighbourSearch, Record,
+    StallReport,
 };
 use crate::domain::IDENTITY_IMAGE;
 use crate::geometry;
@@ -37,15 +38,24 @@ impl<Q: EventQueue> Engine<Q> {
     ///
     /// Soft spheres move by soft steps instead (`soft_stepper`).
     pub fn advance(&mut self, dt: f64) {
-        if self.soft.is_some() {
-            self.soft_advance(dt);
-            return;
+        match self.config.model {
+            ContactModel::Hard => {}
+            ContactModel::Soft => return self.soft_advance(dt),
+            ContactModel::Hybrid => return self.hybrid_advance(dt),
         }
         if self.stall.is_some() {
             return;
         }
         let end = self.now + dt;
         self.ensure_predicted();
+        self.run_events(end, dt, false);
+    }
+
+    /// Processes every event before `end` (s, engine clock), then sets the
+    /// clock to `end`; the watchdog measures progress against `dt` (s).
+    /// With `stop_on_soft`, returns at the event after which a particle
+    /// turned soft (hybrid model), with the clock at that event.
+    pub(super) fn run_events(&mut self, end: f64, dt: f64, stop_on_soft: bool) {
         let window = STALL_MIN_WINDOW.max(STALL_EVENTS_PER_PARTICLE * self.len() as u64);
         let min_progress = if dt.is_finite() {
             STALL_MIN_PROGRESS * dt
@@ -59,6 +69,9 @@ impl<Q: EventQueue> Engine<Q> {
             }
             self.now = t;
             self.process(i as usize);
+            if stop_on_soft && !self.turned_soft.is_empty() {
+                return;
+            }
             events += 1;
             if events == window {
                 if self.now - anchor < min_progress {
@@ -208,10 +221,16 @@ impl<Q: EventQueue> Engine<Q> {
             ),
             NeighbourSearch::Cells => self.cell_exit(ki.pos, ki.vel, self.cell_of[i]),
         };
+        // Hybrid: a soft particle meets walls and other soft particles
+        // through contact forces, not events.
+        let soft_i = self.is_soft[i];
         let mut mask = self.face_mask[i];
         while mask != 0 {
             let face = mask.trailing_zeros() as u8;
             mask &= mask - 1;
+            if soft_i && self.domain.has_wall(face) {
+                continue;
+            }
             let axis = (face / 2) as usize;
             let (x, v) = (ki.pos[axis], ki.vel[axis]);
             let t = if face.is_multiple_of(2) {
@@ -246,8 +265,12 @@ impl<Q: EventQueue> Engine<Q> {
         } else {
             NO_PARTNER
         };
+        let is_soft = &self.is_soft;
         let mut consider = |entry: u32, kin: &[Kinematics]| {
             let (j, code) = neighbours::unpack(entry);
+            if soft_i && is_soft[j as usize] {
+                return;
+            }
             let kj = &kin[j as usize];
             let pj = kj.position_at(now) + self.image_shift[code as usize];
             let t = geometry::pair_contact_time_eager(

@@ -18,6 +18,7 @@ mod boundaries;
 mod contacts;
 mod dynamics;
 mod event_loop;
+mod hybrid;
 mod neighbour_search;
 mod records;
 mod soft_stepper;
@@ -96,6 +97,9 @@ pub struct SoftConfig {
     /// Largest soft time step (s): the shortest contact time over the
     /// steps per contact. A flow step is cut into equal steps no longer.
     pub dt_max: f64,
+    /// Hybrid model: a hard particle turns soft at its this-many-th
+    /// collision within a flow step (`u32::MAX` unless hybrid).
+    pub hybrid_collisions: u32,
     /// Uniform acceleration integrated with the contact forces (m/s²):
     /// gravity without gas (the run then gives no gravity kicks), zero with
     /// gas (gravity is part of the gas kicks).
@@ -108,6 +112,7 @@ impl Default for SoftConfig {
             k_n: 0.0,
             contact_time: 0.0,
             dt_max: f64::INFINITY,
+            hybrid_collisions: u32::MAX,
             gravity: DVec3::ZERO,
         }
     }
@@ -245,6 +250,11 @@ pub struct Engine<Q: EventQueue> {
     stall: Option<StallReport>,
     /// Soft-sphere state; `None` for hard spheres.
     soft: Option<SoftStepper>,
+    /// Hybrid model: whether each slot is soft (all false otherwise).
+    is_soft: Vec<bool>,
+    /// Hybrid model: slots that turned soft since the hybrid stepper last
+    /// took them in.
+    turned_soft: Vec<u32>,
     pub soft_stats: SoftStats,
 }
 
@@ -321,7 +331,7 @@ impl<Q: EventQueue> Engine<Q> {
         let rough = !materials.all_smooth();
         let soft = match config.model {
             ContactModel::Hard => None,
-            ContactModel::Soft => {
+            ContactModel::Soft | ContactModel::Hybrid => {
                 let c = config.soft;
                 if !(c.k_n > 0.0 && c.k_n.is_finite() && c.dt_max > 0.0 && c.gravity.is_finite()) {
                     return Err(EngineError::Config(format!(
@@ -338,11 +348,6 @@ impl<Q: EventQueue> Engine<Q> {
                     SoftStepper::new(&materials, c)
                         .map_err(|e| EngineError::Config(format!("soft spheres: {e}")))?,
                 )
-            }
-            ContactModel::Hybrid => {
-                return Err(EngineError::Config(
-                    "the hybrid model is not implemented yet".into(),
-                ));
             }
         };
         let start_overlap = if soft.is_some() {
@@ -390,6 +395,8 @@ impl<Q: EventQueue> Engine<Q> {
             stall: None,
             soft,
             soft_stats: SoftStats::default(),
+            is_soft: Vec::with_capacity(n),
+            turned_soft: Vec::new(),
         };
         if engine.config.neighbours == NeighbourSearch::Cells {
             let dims = engine.cells.dims();
@@ -499,6 +506,7 @@ impl<Q: EventQueue> Engine<Q> {
             self.last_collision[s] = f64::NEG_INFINITY;
             self.last_partner[s] = NO_PARTNER;
             self.step_collisions[s] = 0;
+            self.is_soft[s] = false;
             return s;
         }
         self.kin.push(kin);
@@ -518,6 +526,7 @@ impl<Q: EventQueue> Engine<Q> {
         self.last_collision.push(f64::NEG_INFINITY);
         self.last_partner.push(NO_PARTNER);
         self.step_collisions.push(0);
+        self.is_soft.push(false);
         let slots = self.kin.len();
         self.lists.resize(slots);
         self.cells.resize(slots);

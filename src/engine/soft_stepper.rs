@@ -24,7 +24,7 @@
 
 use glam::DVec3;
 
-use super::{Engine, SoftConfig};
+use super::{ContactModel, Engine, SoftConfig};
 use crate::collision::ContactParams;
 use crate::contact::soft::{self, Partner, SoftContact, SoftParams, SoftSphere};
 use crate::domain::{Face, IDENTITY_IMAGE};
@@ -81,21 +81,32 @@ pub(super) struct SoftStepper {
     /// Soft parameters of each material against the walls.
     wall: Vec<SoftParams>,
     materials: usize,
-    config: SoftConfig,
+    pub(super) config: SoftConfig,
     /// One sphere per engine slot; its force and torque are those of its
     /// contacts at the end of the last soft step.
-    spheres: Vec<SoftSphere>,
+    pub(super) spheres: Vec<SoftSphere>,
     /// Id of the particle whose force `spheres[slot]` holds (`u64::MAX`:
     /// none).
-    sphere_ids: Vec<u64>,
-    contacts: Vec<SoftContact>,
+    pub(super) sphere_ids: Vec<u64>,
+    pub(super) contacts: Vec<SoftContact>,
     /// Key of each contact, sorted, parallel to `contacts`.
     keys: Vec<ContactKey>,
     /// Whether each contact touched at the end of the last step.
     touching: Vec<bool>,
     /// The contacts must be rebuilt from the lists before the next step.
-    stale: bool,
+    pub(super) stale: bool,
+    /// Hybrid model: the soft slots in sphere order (sphere k is slot
+    /// `members[k]`), each slot's sphere (`NOT_SOFT` if hard), each
+    /// member's shell centre when the contacts were built, and whether it
+    /// touched anything in the current flow step.
+    pub(super) members: Vec<usize>,
+    pub(super) local: Vec<u32>,
+    pub(super) centres: Vec<DVec3>,
+    pub(super) touched: Vec<bool>,
 }
+
+/// `SoftStepper::local` of a hard slot.
+pub(super) const NOT_SOFT: u32 = u32::MAX;
 
 impl SoftStepper {
     /// Soft parameters of every pair and wall pair of `materials`, with
@@ -134,6 +145,10 @@ impl SoftStepper {
             keys: Vec::new(),
             touching: Vec::new(),
             stale: true,
+            members: Vec::new(),
+            local: Vec::new(),
+            centres: Vec::new(),
+            touched: Vec::new(),
         })
     }
 }
@@ -156,7 +171,7 @@ impl<Q: EventQueue> Engine<Q> {
             soft::step(&mut st.spheres, &mut st.contacts, st.config.gravity, h);
             self.now = if k + 1 == steps { end } else { self.now + h };
             self.store_spheres(&st);
-            self.tally_contacts(&mut st, h);
+            self.tally_contacts(&mut st, h, self.len() as u64);
             self.refresh_neighbours(&mut st);
         }
         let moved = self.len() as f64 * dt;
@@ -233,12 +248,28 @@ impl<Q: EventQueue> Engine<Q> {
 
     /// The candidate contacts from the neighbour lists and wall faces, with
     /// the state of those that were already listed.
-    fn rebuild_contacts(&mut self, st: &mut SoftStepper) {
-        let mut fresh: Vec<(ContactKey, SoftContact)> = Vec::with_capacity(st.contacts.len());
-        for i in 0..self.kin.len() {
-            if !self.active[i] {
-                continue;
+    ///
+    /// Soft model: every active slot, sphere index = slot. Hybrid: the
+    /// members only, pairs of two members.
+    pub(super) fn rebuild_contacts(&mut self, st: &mut SoftStepper) {
+        let hybrid = self.config.model == ContactModel::Hybrid;
+        let slots: Vec<usize> = if hybrid {
+            st.members.clone()
+        } else {
+            (0..self.kin.len()).filter(|&i| self.active[i]).collect()
+        };
+        let sphere = |slot: usize| -> Option<usize> {
+            if !hybrid {
+                Some(slot)
+            } else if st.local[slot] == NOT_SOFT {
+                None
+            } else {
+                Some(st.local[slot] as usize)
             }
+        };
+        let mut fresh: Vec<(ContactKey, SoftContact)> = Vec::with_capacity(st.contacts.len());
+        for i in slots {
+            let Some(a) = sphere(i) else { continue };
             let mi = self.material[i] as usize;
             for &entry in self.lists.list(i) {
                 let (j, code) = neighbours::unpack(entry);
@@ -246,11 +277,12 @@ impl<Q: EventQueue> Engine<Q> {
                 if self.id[j] < self.id[i] {
                     continue;
                 }
+                let Some(b) = sphere(j) else { continue };
                 let partner = if code == IDENTITY_IMAGE {
-                    Partner::Sphere(j)
+                    Partner::Sphere(b)
                 } else {
                     Partner::Image {
-                        index: j,
+                        index: b,
                         shift: self.image_shift[code as usize],
                     }
                 };
@@ -258,7 +290,7 @@ impl<Q: EventQueue> Engine<Q> {
                 let params = &st.pair[mi * st.materials + self.material[j] as usize];
                 fresh.push((
                     (self.id[i], self.id[j]),
-                    SoftContact::new(i, partner, params.coefficients(m_ab)),
+                    SoftContact::new(a, partner, params.coefficients(m_ab)),
                 ));
             }
             let mut mask = self.face_mask[i];
@@ -280,7 +312,7 @@ impl<Q: EventQueue> Engine<Q> {
                 fresh.push((
                     (self.id[i], WALL_KEY + u64::from(face)),
                     SoftContact::new(
-                        i,
+                        a,
                         Partner::Wall { point, normal },
                         params.coefficients(1.0 / self.inv_mass[i]),
                     ),
@@ -303,20 +335,29 @@ impl<Q: EventQueue> Engine<Q> {
         st.keys = fresh.iter().map(|e| e.0).collect();
         st.contacts = fresh.into_iter().map(|e| e.1).collect();
         st.stale = false;
+        if hybrid {
+            st.centres = st.members.iter().map(|&i| self.shells[i].centre).collect();
+        }
     }
 
     /// After a soft step of `h` (s): counts the particle-steps, the
-    /// contacts that began and the largest overlap, and adds the wall
+    /// contacts that began and the largest overlap, marks the spheres that
+    /// touched something, `moved` particle-steps, and adds the wall
     /// forces to the wall impulses (`Counters::wall_impulse`, momentum given
     /// to each wall face).
-    fn tally_contacts(&mut self, st: &mut SoftStepper, h: f64) {
-        let moved = self.len() as u64;
+    pub(super) fn tally_contacts(&mut self, st: &mut SoftStepper, h: f64, moved: u64) {
         let stats = &mut self.soft_stats;
         stats.steps += 1;
         stats.particle_steps += moved;
         for (c, (touching, key)) in st.contacts.iter().zip(st.touching.iter_mut().zip(&st.keys)) {
             let s = &c.state;
             if s.touching {
+                if let Some(t) = st.touched.get_mut(c.a) {
+                    *t = true;
+                }
+                if let Some(t) = c.partner.sphere().and_then(|(b, _)| st.touched.get_mut(b)) {
+                    *t = true;
+                }
                 let ra = st.spheres[c.a].radius;
                 let contact_distance = match c.partner.sphere() {
                     Some((b, _)) => ra + st.spheres[b].radius,
@@ -384,10 +425,11 @@ impl<Q: EventQueue> Engine<Q> {
     /// Fraction of the particles that soft steps move now (1 for the soft
     /// model, 0 for hard spheres).
     pub fn soft_fraction_now(&self) -> f64 {
-        if self.soft.is_some() && !self.is_empty() {
-            1.0
-        } else {
-            0.0
+        match (&self.soft, self.config.model) {
+            _ if self.is_empty() => 0.0,
+            (Some(st), ContactModel::Hybrid) => st.members.len() as f64 / self.len() as f64,
+            (Some(_), _) => 1.0,
+            (None, _) => 0.0,
         }
     }
 

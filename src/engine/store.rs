@@ -108,6 +108,7 @@ impl<Q: EventQueue> Engine<Q> {
         permute(&mut self.last_collision, &order);
         permute(&mut self.last_partner, &order);
         permute(&mut self.step_collisions, &order);
+        permute(&mut self.is_soft, &order);
         for p in &mut self.last_partner {
             if *p != NO_PARTNER {
                 *p = new_slot[*p as usize];

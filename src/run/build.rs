@@ -103,9 +103,9 @@ pub fn build_engine<Q: EventQueue>(s: &Scenario) -> anyhow::Result<Engine<Q>> {
 
 /// Soft-sphere settings of the engine: stiffness and time step from
 /// [`Scenario::soft_derived`] (also for the initial particles, which may
-/// come from a checkpoint); gravity is integrated by the soft steps
-/// without gas and is part of the gas kicks with gas. Defaults for hard
-/// spheres.
+/// come from a checkpoint); with the soft model, gravity is integrated by
+/// the soft steps without gas (the gas kicks hold it with gas); the hybrid
+/// model keeps gravity kicks. Defaults for hard spheres.
 pub fn soft_config(s: &Scenario, particles: &[NewParticle]) -> anyhow::Result<SoftConfig> {
     if s.engine.model == ContactModel::Hard {
         return Ok(SoftConfig::default());
@@ -121,7 +121,14 @@ pub fn soft_config(s: &Scenario, particles: &[NewParticle]) -> anyhow::Result<So
         k_n: derived.k_n,
         contact_time: derived.contact_time,
         dt_max: derived.dt_max,
-        gravity: if s.gas.is_none() {
+        hybrid_collisions: if s.engine.model == ContactModel::Hybrid {
+            s.engine.soft.hybrid_collisions
+        } else {
+            u32::MAX
+        },
+        // Hybrid: hard particles take gravity as flow-step kicks, and so
+        // do soft ones.
+        gravity: if s.gas.is_none() && s.engine.model == ContactModel::Soft {
             s.domain.gravity
         } else {
             DVec3::ZERO

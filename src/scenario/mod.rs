@@ -368,7 +368,13 @@ pub struct SoftSettings {
     /// Soft time steps per shortest contact time, >= 20 by default
     /// ([`crate::contact::soft::DEFAULT_STEPS_PER_CONTACT`]).
     pub steps_per_contact: u32,
+    /// Hybrid model: a particle turns soft at its this-many-th collision
+    /// within a flow step.
+    pub hybrid_collisions: u32,
 }
+
+/// Default `[engine.soft] hybrid_collisions`.
+pub const DEFAULT_HYBRID_COLLISIONS: u32 = 50;
 
 /// How the normal stiffness `k_n` is given.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -179,6 +179,7 @@ pub(super) struct RawSoft {
     pub max_overlap: Option<f64>,
     pub impact_speed: Option<f64>,
     pub steps_per_contact: Option<RawInt>,
+    pub hybrid_collisions: Option<RawInt>,
 }
 
 #[derive(Deserialize)]

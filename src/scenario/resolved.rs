@@ -438,6 +438,13 @@ fn write_soft(w: &mut Writer, s: &Scenario) {
         s.engine.soft.steps_per_contact.to_string(),
         "",
     );
+    if s.engine.model == ContactModel::Hybrid {
+        w.key(
+            "hybrid_collisions",
+            s.engine.soft.hybrid_collisions.to_string(),
+            "collisions in a flow step at which a particle turns soft",
+        );
+    }
     match s.soft_derived(std::iter::empty()) {
         Ok(d) => w.comment(&format!(
             "derived from the populations: k_n = {:.6e} N/m, shortest contact time {:.6e} s, soft time step <= {:.6e} s",

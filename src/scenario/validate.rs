@@ -10,10 +10,11 @@ use super::ctx::Ctx;
 use super::diameter::{LOGNORMAL_MIN_MASS, lognormal_mass};
 use super::raw::{self, AxisName, RawAxis, RawDiameter, RawFluxBasis, RawScenario};
 use super::{
-    AxisBoundary, Boundaries, CollisionSettings, ContactTable, DEFAULT_SOFT_IMPACT_SPEED,
-    DEFAULT_SOFT_MAX_OVERLAP, Diameter, Domain, EngineSettings, FluxBasis, InitialState, Inlet,
-    Material, NeighbourChoice, Outlet, OutletMode, OutputSettings, Placement, Population, Region,
-    Scenario, ScenarioError, SoftSettings, Splitting, Stiffness, TimeSettings, limits, overrides,
+    AxisBoundary, Boundaries, CollisionSettings, ContactTable, DEFAULT_HYBRID_COLLISIONS,
+    DEFAULT_SOFT_IMPACT_SPEED, DEFAULT_SOFT_MAX_OVERLAP, Diameter, Domain, EngineSettings,
+    FluxBasis, InitialState, Inlet, Material, NeighbourChoice, Outlet, OutletMode, OutputSettings,
+    Placement, Population, Region, Scenario, ScenarioError, SoftSettings, Splitting, Stiffness,
+    TimeSettings, limits, overrides,
 };
 use crate::collision::ContactParams;
 use crate::engine::ContactModel;
@@ -171,6 +172,17 @@ pub(crate) fn validate(ctx: &Ctx, raw: RawScenario) -> R<Scenario> {
 
     // ---- engine
     let engine = validate_engine(ctx, raw.engine)?;
+    if engine.model == ContactModel::Hybrid
+        && u64::from(engine.soft.hybrid_collisions) >= collisions.max_collisions_per_step
+    {
+        return Err(ctx.err(
+            "engine.soft.hybrid_collisions",
+            format!(
+                "must be below collisions.max_collisions_per_step = {} (the collapse guard), got {}",
+                collisions.max_collisions_per_step, engine.soft.hybrid_collisions
+            ),
+        ));
+    }
     if engine.model != ContactModel::Hard
         && let Some(p) = contacts.params.iter().flatten().find(|p| p.e_n <= 0.0)
     {
@@ -917,12 +929,6 @@ fn validate_engine(ctx: &Ctx, raw: Option<raw::RawEngine>) -> R<EngineSettings> 
         return Err(ctx.err("engine.skin", format!("must be in (0, 2], got {skin:?}")));
     }
     let model = model.unwrap_or_default();
-    if model == ContactModel::Hybrid {
-        return Err(ctx.err(
-            "engine.model",
-            "\"hybrid\" is not implemented yet; use \"hard\" or \"soft\"".to_string(),
-        ));
-    }
     let neighbours = neighbours.unwrap_or(NeighbourChoice::Auto);
     if model != ContactModel::Hard && neighbours == NeighbourChoice::Cells {
         return Err(ctx.err(
@@ -949,6 +955,7 @@ fn validate_soft(ctx: &Ctx, raw: Option<raw::RawSoft>) -> R<SoftSettings> {
                 impact_speed: DEFAULT_SOFT_IMPACT_SPEED,
             },
             steps_per_contact: crate::contact::soft::DEFAULT_STEPS_PER_CONTACT,
+            hybrid_collisions: DEFAULT_HYBRID_COLLISIONS,
         });
     };
     let stiffness = match (raw.k_n, raw.max_overlap, raw.impact_speed) {
@@ -992,9 +999,23 @@ fn validate_soft(ctx: &Ctx, raw: Option<raw::RawSoft>) -> R<SoftSettings> {
         }
         None => crate::contact::soft::DEFAULT_STEPS_PER_CONTACT,
     };
+    let hybrid_collisions = match &raw.hybrid_collisions {
+        Some(v) => {
+            let n = ctx.uint("engine.soft.hybrid_collisions", v)?;
+            if !(1..=u64::from(u32::MAX - 1)).contains(&n) {
+                return Err(ctx.err(
+                    "engine.soft.hybrid_collisions",
+                    format!("must be in [1, {}], got {n}", u32::MAX - 1),
+                ));
+            }
+            n as u32
+        }
+        None => DEFAULT_HYBRID_COLLISIONS,
+    };
     Ok(SoftSettings {
         stiffness,
         steps_per_contact,
+        hybrid_collisions,
     })
 }
 
