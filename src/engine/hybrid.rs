@@ -43,6 +43,16 @@ impl<Q: EventQueue> Engine<Q> {
         }
     }
 
+    /// Whether the particle in `slot` is soft now (hybrid model; always
+    /// false for hard spheres, true for the soft model).
+    pub fn is_soft(&self, slot: usize) -> bool {
+        match self.config.model {
+            ContactModel::Hard => false,
+            ContactModel::Soft => true,
+            ContactModel::Hybrid => self.is_soft[slot],
+        }
+    }
+
     /// Moves every particle to `now + dt` (module docs).
     pub(super) fn hybrid_advance(&mut self, dt: f64) {
         if self.stall.is_some() {
