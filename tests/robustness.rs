@@ -351,7 +351,7 @@ fn stalled_event_loop_stops_with_causes_and_remedies() {
             "less than 1e-6 of the flow step (0.0001 s)",
             "Likely cause: inelastic collapse in a dense region (smallest restitution e_n = 0.3)",
             "Remedies: the TC model (collisions.tc, e.g. 1e-5 s",
-            "a hybrid model that treats dense regions with soft spheres is planned",
+            "soft spheres can: engine.model = \"hybrid\"",
             "summary.json has \"status\": \"failed\"",
         ],
     );

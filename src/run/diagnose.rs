@@ -81,7 +81,7 @@ pub(super) fn stall_message(s: &Scenario, stall: &crate::engine::StallReport) ->
         "the TC model (collisions.tc, e.g. 1e-5 s: a collision within tc of a particle's previous one is elastic; now 0)".to_string()
     };
     format!(
-        "simulated time stopped advancing at t = {:?} s: {} events moved the clock by {:.3e} s, less than 1e-6 of the flow step ({:?} s). Likely cause: inelastic collapse in a dense region (smallest restitution e_n = {:?}): particle {} at ({:.6}, {:.6}, {:.6}) m collided {} times in this flow step, and {} particles passed collisions.max_collisions_per_step = {}. Remedies: {tc_now}; a higher restitution (collisions.default.e_n); fewer particles in the dense region. The hard-sphere event loop cannot pass such a cluster; a hybrid model that treats dense regions with soft spheres is planned",
+        "simulated time stopped advancing at t = {:?} s: {} events moved the clock by {:.3e} s, less than 1e-6 of the flow step ({:?} s). Likely cause: inelastic collapse in a dense region (smallest restitution e_n = {:?}): particle {} at ({:.6}, {:.6}, {:.6}) m collided {} times in this flow step, and {} particles passed collisions.max_collisions_per_step = {}. Remedies: {tc_now}; a higher restitution (collisions.default.e_n); fewer particles in the dense region. The hard-sphere event loop cannot pass such a cluster; soft spheres can: engine.model = \"hybrid\" (soft where collisions are no longer binary) or \"soft\"",
         stall.time,
         stall.events,
         stall.clock_advance,
