@@ -433,6 +433,23 @@ impl<Q: EventQueue> Engine<Q> {
         }
     }
 
+    /// Elastic energy stored in the soft contacts (J): `½ k_n δ²` of the
+    /// normal springs and `½ k_t |δ_t|²` of the tangential ones, at the end
+    /// of the last soft step.
+    pub fn soft_contact_energy(&self) -> f64 {
+        let Some(st) = &self.soft else {
+            return 0.0;
+        };
+        st.contacts
+            .iter()
+            .filter(|c| c.state.touching)
+            .map(|c| {
+                0.5 * c.coeffs.k_n * c.state.overlap * c.state.overlap
+                    + 0.5 * c.coeffs.k_t * c.state.displacement.length_squared()
+            })
+            .sum()
+    }
+
     /// Whether the soft steps integrate gravity (then the run must not
     /// also kick it).
     pub fn integrates_gravity(&self) -> bool {
