@@ -471,3 +471,100 @@ fn elastic_hybrid_conserves_energy() {
     // contacts under way (1.1e-3 here), hence the stored part.
     assert!(worst < 2e-3, "{worst}");
 }
+
+/// Bad `[engine]` soft settings: one clear message naming the file, the
+/// field and what is allowed.
+#[test]
+fn bad_soft_settings_are_refused_with_the_field_named() {
+    let cases: [(&[&str], &[&str]); 6] = [
+        (
+            &["engine.model=\"squishy\""],
+            &["box-walls.toml", "engine.model", "`hard`, `soft`, `hybrid`"],
+        ),
+        (
+            &[
+                "engine.model=\"soft\"",
+                "engine.soft.k_n=1e4",
+                "engine.soft.max_overlap=0.01",
+            ],
+            &["engine.soft.k_n", "not both"],
+        ),
+        (
+            &["engine.soft.max_overlap=0.5"],
+            &["engine.soft.max_overlap", "(0, 0.1]"],
+        ),
+        (
+            &["engine.soft.steps_per_contact=5"],
+            &["engine.soft.steps_per_contact", "[10, 10000]"],
+        ),
+        (
+            &["engine.model=\"soft\"", "collisions.default.e_n=0"],
+            &["collisions", "e_n > 0"],
+        ),
+        (
+            &[
+                "engine.model=\"hybrid\"",
+                "engine.soft.hybrid_collisions=1000",
+            ],
+            &[
+                "engine.soft.hybrid_collisions",
+                "max_collisions_per_step = 1000",
+            ],
+        ),
+    ];
+    for (sets, fragments) in cases {
+        let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
+        let err = Scenario::from_file_with_overrides(
+            Path::new(ROOT).join("scenarios/box-walls.toml"),
+            &sets,
+        )
+        .expect_err("refused")
+        .to_string();
+        for f in fragments {
+            assert!(err.contains(f), "{f:?} missing from: {err}");
+        }
+    }
+    let err = Scenario::from_file_with_overrides(
+        Path::new(ROOT).join("scenarios/box-walls.toml"),
+        &[
+            "engine.model=\"soft\"".into(),
+            "engine.neighbours=\"cells\"".into(),
+        ],
+    )
+    .expect_err("refused")
+    .to_string();
+    assert!(
+        err.contains("engine.neighbours") && err.contains("neighbour lists"),
+        "{err}"
+    );
+}
+
+/// The resolved text of soft and hybrid scenarios (both stiffness forms)
+/// reads back to the same scenario and is a fixed point; it states the
+/// derived stiffness.
+#[test]
+fn soft_settings_round_trip_through_the_resolved_text() {
+    for sets in [
+        vec!["engine.model=\"soft\""],
+        vec![
+            "engine.model=\"soft\"",
+            "engine.soft.k_n=2.5e3",
+            "engine.soft.steps_per_contact=40",
+        ],
+        vec![
+            "engine.model=\"hybrid\"",
+            "engine.soft.max_overlap=0.005",
+            "engine.soft.impact_speed=2.0",
+            "engine.soft.hybrid_collisions=20",
+        ],
+    ] {
+        let s = shipped("box-walls.toml", &sets);
+        let text = edpm::scenario::resolved_toml(&s);
+        assert!(
+            text.contains("[engine.soft]") && text.contains("derived from the populations: k_n = ")
+        );
+        let again = Scenario::from_str_named(&text, "resolved.toml", &[]).expect(&text);
+        assert_eq!(edpm::scenario::resolved_toml(&again), text);
+        assert_eq!(again.engine, s.engine);
+    }
+}
