@@ -724,6 +724,27 @@ fn batch_runs_print_progress_lines_on_stderr() {
             .unwrap()
     };
     assert!(lines.windows(2).all(|w| t(w[0]) <= t(w[1])), "{lines:?}");
+    // Soft and hybrid runs add the share of soft particles.
+    let o = edpm(&[
+        "run",
+        "scenarios/bubbling-bed-jet.toml",
+        "--out",
+        fresh_dir("progress-soft").to_str().unwrap(),
+        "--t-end",
+        "0.005",
+        "--progress-interval",
+        "0.01",
+        "--set",
+        "engine.model=soft",
+    ]);
+    assert_success(&o);
+    let err = stderr(&o);
+    let soft: Vec<&str> = err
+        .lines()
+        .filter(|l| l.starts_with("edpm: t = "))
+        .collect();
+    assert!(!soft.is_empty(), "{err}");
+    assert!(soft.iter().all(|l| l.contains("soft 100.0 %")), "{soft:?}");
     // --quiet (added by run_into) silences them; a bad interval is refused.
     let quiet = run_into(
         "scenarios/bubbling-bed-jet.toml",

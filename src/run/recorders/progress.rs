@@ -6,7 +6,7 @@ use std::io::IsTerminal;
 use std::time::{Duration, Instant};
 
 use super::{Recorder, RunEnd, StepEnd};
-use crate::engine::Engine;
+use crate::engine::{ContactModel, Engine};
 use crate::gas::flow::GasRun;
 use crate::queue::EventQueue;
 
@@ -18,8 +18,9 @@ enum Display {
     Lines { every: Duration, next: Instant },
 }
 
-/// Reports simulated time, events per wall second, the estimated time left
-/// and, with gas, the largest Courant number of the last flow step.
+/// Reports simulated time, events per wall second, the estimated time left,
+/// the share of soft particles in soft and hybrid runs and, with gas, the
+/// largest Courant number of the last flow step.
 pub struct Progress {
     display: Display,
     t_end: f64,
@@ -108,6 +109,9 @@ impl<Q: EventQueue> Recorder<Q> for Progress {
                     engine.len(),
                     human_duration(eta)
                 );
+                if engine.model() != ContactModel::Hard {
+                    line += &format!(", soft {:.1} %", 100.0 * engine.soft_fraction_now());
+                }
                 if let Some(gas) = gas {
                     line += &format!(", Courant {:.3}", gas.gas.courant(end.dt));
                 }
