@@ -48,6 +48,12 @@ enum Command {
         /// (default: 10 per run).
         #[arg(long, value_name = "STEPS")]
         log_checkpoint_steps: Option<u64>,
+        /// Run into an output directory that holds an earlier run's
+        /// outputs: edpm's own files there (summary, time series,
+        /// snapshots, VTK, final state, analysis) are deleted first.
+        /// Without it such a directory is refused.
+        #[arg(long)]
+        force: bool,
     },
     /// Validate a scenario: print it resolved (every default filled in,
     /// with units) on stdout, and particles, gas cells, flow steps, the
@@ -259,12 +265,14 @@ fn main() -> ExitCode {
             progress_interval,
             log,
             log_checkpoint_steps,
+            force,
         } => {
             let opts = edpm::run::RunOptions {
                 progress: !quiet,
                 progress_interval,
                 log,
                 log_checkpoint_steps,
+                force,
             };
             edpm::run::run_cli(&scenario, out.as_deref(), t_end, &overrides, &opts)
         }

@@ -345,7 +345,7 @@ fn check_options(o: &AnalyseOptions) -> anyhow::Result<()> {
 const SNAPSHOT_HINT: &str = "run with `[output] snapshot_interval = T` in the scenario \
      (or `edpm run SCENARIO --set output.snapshot_interval=T`)";
 
-/// The snapshot files of a run, in order.
+/// The snapshot files of a run, in order, all written by the same run.
 pub fn snapshot_paths(run_dir: &Path) -> anyhow::Result<Vec<PathBuf>> {
     if !run_dir.is_dir() {
         bail!("{}: no such run directory", run_dir.display());
@@ -366,6 +366,7 @@ pub fn snapshot_paths(run_dir: &Path) -> anyhow::Result<Vec<PathBuf>> {
         );
     }
     paths.sort();
+    Snapshot::check_one_run(&paths)?;
     Ok(paths)
 }
 

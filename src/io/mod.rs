@@ -3,6 +3,7 @@
 //! logs ([`eventlog`]). Formats only: what is written when is decided by
 //! the run's recorders (`crate::run::recorders`).
 
+pub mod container;
 pub mod eventlog;
 pub mod output;
 pub mod snapshot;

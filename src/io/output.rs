@@ -5,6 +5,7 @@ use std::path::Path;
 
 use anyhow::Context;
 
+use crate::io::container::{self, Kind};
 use crate::particles::NewParticle;
 
 /// Writes `bytes` to `path` atomically: to a temporary file in the same
@@ -97,17 +98,67 @@ impl CsvTable {
 
     /// Appends `values` as the columns from `first` on, and ends the row.
     fn push_cells(&mut self, values: &[f64], first: usize) {
-        let cells: Vec<String> = values
-            .iter()
-            .enumerate()
-            .map(|(c, &v)| csv_number(v, self.integer.get(first + c) == Some(&true)))
-            .collect();
-        self.text.push_str(&cells.join(","));
-        self.text.push('\n');
+        self.text
+            .push_str(&csv_cells(values, self.integer.get(first..).unwrap_or(&[])));
     }
 
     pub fn write(&self, path: &Path) -> anyhow::Result<()> {
         write_atomic(path, self.text.as_bytes())
+    }
+}
+
+/// `values` as CSV cells ([`csv_number`]; `integer[c]` for column `c`),
+/// ending the line.
+fn csv_cells(values: &[f64], integer: &[bool]) -> String {
+    let cells: Vec<String> = values
+        .iter()
+        .enumerate()
+        .map(|(c, &v)| csv_number(v, integer.get(c) == Some(&true)))
+        .collect();
+    cells.join(",") + "\n"
+}
+
+/// A CSV file written row by row as a run goes: each line goes to the
+/// file in one `write` call, so a killed run leaves whole lines only (up
+/// to the last row written).
+pub struct CsvStream {
+    path: std::path::PathBuf,
+    file: std::fs::File,
+    /// Whether each column is one of [`INTEGER_COLUMNS`].
+    integer: Vec<bool>,
+}
+
+impl CsvStream {
+    /// Creates (or truncates) `path` and writes the header line.
+    pub fn create(path: &Path, header: &[&str]) -> anyhow::Result<CsvStream> {
+        let file =
+            std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?;
+        let mut s = CsvStream {
+            path: path.to_path_buf(),
+            file,
+            integer: header.iter().map(|h| INTEGER_COLUMNS.contains(h)).collect(),
+        };
+        s.write_line(&(header.join(",") + "\n"))?;
+        Ok(s)
+    }
+
+    /// Appends one row, formatted as [`CsvTable::row`] does.
+    pub fn row(&mut self, values: &[f64]) -> anyhow::Result<()> {
+        let line = csv_cells(values, &self.integer);
+        self.write_line(&line)
+    }
+
+    fn write_line(&mut self, line: &str) -> anyhow::Result<()> {
+        self.file
+            .write_all(line.as_bytes())
+            .with_context(|| format!("writing {}", self.path.display()))
+    }
+
+    /// Flushes the file to disk (at the end of a run).
+    pub fn sync(&mut self) -> anyhow::Result<()> {
+        self.file
+            .sync_all()
+            .with_context(|| format!("flushing {}", self.path.display()))
     }
 }
 
@@ -147,29 +198,36 @@ impl CsvColumns {
     }
 }
 
-/// Version of the checkpoint format.
-pub const CHECKPOINT_VERSION: u32 = 1;
+/// Version of the checkpoint format: 2 put it in the checksummed
+/// container (magic `EDPMCKPT`, docs/data-files.md).
+pub const CHECKPOINT_VERSION: u32 = 2;
+
+/// The container kind of checkpoints.
+pub const CHECKPOINT_KIND: Kind = Kind {
+    magic: *b"EDPMCKPT",
+    what: "checkpoint",
+    version: CHECKPOINT_VERSION,
+    legacy_up_to: 1,
+};
 
 /// A full particle state, loadable with `[initial] checkpoint = ...`.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Checkpoint {
+    /// The run that wrote it (in the container header, not the payload).
+    #[serde(skip)]
+    pub run_id: u64,
     pub version: u32,
     /// Simulation time of the state (s).
     pub time: f64,
     pub particles: Vec<NewParticle>,
 }
 
-fn bincode_config() -> impl bincode::config::Config {
-    bincode::config::standard()
-        .with_little_endian()
-        .with_fixed_int_encoding()
-}
-
 impl Checkpoint {
     pub fn write(&self, path: &Path) -> anyhow::Result<()> {
-        let bytes =
-            bincode::serde::encode_to_vec(self, bincode_config()).context("encoding checkpoint")?;
-        write_atomic(path, &bytes)
+        write_atomic(
+            path,
+            &container::encode(&CHECKPOINT_KIND, self.run_id, self)?,
+        )
     }
 
     pub fn read(path: &Path) -> anyhow::Result<Checkpoint> {
@@ -181,21 +239,14 @@ impl Checkpoint {
     /// Decodes a checkpoint file's bytes; `name` is used in messages. The
     /// particles are not checked here (the engine checks each one).
     pub fn from_bytes(bytes: &[u8], name: &str) -> anyhow::Result<Checkpoint> {
-        let (cp, used): (Checkpoint, usize) =
-            bincode::serde::decode_from_slice(bytes, bincode_config())
-                .with_context(|| format!("{name}: not a valid edpm checkpoint"))?;
+        let (header, mut cp): (_, Checkpoint) = container::decode(&CHECKPOINT_KIND, name, bytes)?;
         if cp.version != CHECKPOINT_VERSION {
             anyhow::bail!(
-                "{name}: checkpoint format version {} is not supported (this edpm reads version {CHECKPOINT_VERSION})",
+                "{name}: the payload says checkpoint version {}, the header {CHECKPOINT_VERSION}: the checkpoint is damaged",
                 cp.version
             );
         }
-        if used != bytes.len() {
-            anyhow::bail!(
-                "{name}: not a valid edpm checkpoint: {} unexpected bytes after the particles",
-                bytes.len() - used
-            );
-        }
+        cp.run_id = header.run_id;
         Ok(cp)
     }
 }
@@ -230,6 +281,7 @@ mod tests {
             material: 3,
         };
         let cp = Checkpoint {
+            run_id: 7,
             version: CHECKPOINT_VERSION,
             time: 0.25,
             particles: vec![p; 3],
@@ -238,7 +290,7 @@ mod tests {
         assert_eq!(Checkpoint::read(&path).unwrap(), cp);
         Checkpoint { version: 99, ..cp }.write(&path).unwrap();
         let err = Checkpoint::read(&path).unwrap_err().to_string();
-        assert!(err.contains("version 99 is not supported"), "{err}");
+        assert!(err.contains("payload says checkpoint version 99"), "{err}");
         std::fs::remove_dir_all(dir).unwrap();
     }
 }

@@ -3,21 +3,34 @@
 //! collisional pressure and dissipation with kinetic theory.
 //!
 //! A run with `[output] snapshot_interval` writes
-//! `RUN_DIR/snapshots/NNNNNN.bin` (bincode, [`SNAPSHOT_VERSION`]), each a
-//! [`Snapshot`]. Files are written atomically.
+//! `RUN_DIR/snapshots/NNNNNN.bin`, each a [`Snapshot`] in the checksummed
+//! container of [`crate::io::container`] (magic `EDPMSNAP`, version
+//! [`SNAPSHOT_VERSION`], the run id in its header; docs/data-files.md).
+//! Files are written atomically. `edpm analyse` refuses a directory whose
+//! snapshots come from different runs.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
 use crate::engine::{CollisionRecord, ParticleView, Partner};
+use crate::io::container::{self, Kind};
 use crate::io::output::write_atomic;
 
 /// Version of the snapshot format: 2 split the tally's dissipation into
-/// normal and tangential parts and added the TC/guard alterations.
-pub const SNAPSHOT_VERSION: u32 = 2;
+/// normal and tangential parts and added the TC/guard alterations; 3 put
+/// the snapshot in the checksummed container with the run id.
+pub const SNAPSHOT_VERSION: u32 = 3;
+
+/// The container kind of snapshots.
+pub const SNAPSHOT_KIND: Kind = Kind {
+    magic: *b"EDPMSNAP",
+    what: "snapshot",
+    version: SNAPSHOT_VERSION,
+    legacy_up_to: 2,
+};
 
 /// One particle in a snapshot (SI units).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -189,6 +202,10 @@ pub struct GasSnapshot {
 /// Everything `edpm analyse` needs at one instant.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Snapshot {
+    /// The run that wrote the snapshot (in the container header, not the
+    /// payload).
+    #[serde(skip)]
+    pub run_id: u64,
     pub version: u32,
     /// Time (s).
     pub time: f64,
@@ -205,46 +222,26 @@ pub struct Snapshot {
     pub collisions: Option<CollisionTally>,
 }
 
-fn config() -> impl bincode::config::Config {
-    bincode::config::standard()
-        .with_little_endian()
-        .with_fixed_int_encoding()
-}
-
 impl Snapshot {
     pub fn write(&self, path: &Path) -> anyhow::Result<()> {
-        let bytes = bincode::serde::encode_to_vec(self, config()).context("encoding snapshot")?;
-        write_atomic(path, &bytes)
+        write_atomic(path, &container::encode(&SNAPSHOT_KIND, self.run_id, self)?)
     }
 
     pub fn read(path: &Path) -> anyhow::Result<Snapshot> {
-        let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
-        // The version is the first field (4 bytes, little-endian): check it
-        // before decoding a layout it may not have.
-        if let Some(v) = bytes.get(..4) {
-            let version = u32::from_le_bytes(v.try_into().expect("4 bytes"));
-            if version != SNAPSHOT_VERSION && (1..SNAPSHOT_VERSION).contains(&version) {
-                anyhow::bail!(
-                    "{}: snapshot version {version} (this edpm reads version {SNAPSHOT_VERSION}); \
-                     run the scenario again to write version {SNAPSHOT_VERSION} snapshots",
-                    path.display()
-                );
-            }
-        }
-        let (s, _): (Snapshot, usize) = bincode::serde::decode_from_slice(&bytes, config())
-            .with_context(|| format!("{}: not an edpm snapshot", path.display()))?;
+        let (header, mut s): (_, Snapshot) = container::read(&SNAPSHOT_KIND, path)?;
         if s.version != SNAPSHOT_VERSION {
             anyhow::bail!(
-                "{}: snapshot version {} (this edpm reads version {SNAPSHOT_VERSION})",
+                "{}: the payload says snapshot version {}, the header {SNAPSHOT_VERSION}: the snapshot is damaged",
                 path.display(),
                 s.version
             );
         }
+        s.run_id = header.run_id;
         Ok(s)
     }
 
-    /// All snapshots of a run directory, in time order.
-    pub fn read_all(run_dir: &Path) -> anyhow::Result<Vec<Snapshot>> {
+    /// The snapshot files of a run directory, in time order (by name).
+    pub fn paths(run_dir: &Path) -> anyhow::Result<Vec<PathBuf>> {
         let dir = run_dir.join("snapshots");
         let mut paths: Vec<_> = std::fs::read_dir(&dir)
             .with_context(|| {
@@ -257,8 +254,43 @@ impl Snapshot {
             .filter(|p| p.extension().is_some_and(|e| e == "bin"))
             .collect();
         paths.sort();
+        Ok(paths)
+    }
+
+    /// Checks from the headers alone that every snapshot in `paths` was
+    /// written by the same run, and returns its id: a directory reused by
+    /// several runs must not be analysed as one.
+    pub fn check_one_run(paths: &[PathBuf]) -> anyhow::Result<Option<u64>> {
+        let mut first: Option<(u64, &PathBuf)> = None;
+        for p in paths {
+            let id = container::read_header(&SNAPSHOT_KIND, p)?.run_id;
+            match first {
+                None => first = Some((id, p)),
+                Some((id0, p0)) if id0 != id => anyhow::bail!(
+                    "{}: written by run {}, but {} by run {}: the directory holds snapshots of \
+                     different runs; run again into an empty directory (or with --force)",
+                    p.display(),
+                    run_id_text(id),
+                    p0.display(),
+                    run_id_text(id0)
+                ),
+                _ => {}
+            }
+        }
+        Ok(first.map(|(id, _)| id))
+    }
+
+    /// All snapshots of a run directory, in time order, all from one run.
+    pub fn read_all(run_dir: &Path) -> anyhow::Result<Vec<Snapshot>> {
+        let paths = Snapshot::paths(run_dir)?;
+        Snapshot::check_one_run(&paths)?;
         paths.iter().map(|p| Snapshot::read(p)).collect()
     }
+}
+
+/// A run id as written in messages and `summary.json`: 16 hex digits.
+pub fn run_id_text(id: u64) -> String {
+    format!("{id:016x}")
 }
 
 #[cfg(test)]
@@ -268,6 +300,7 @@ mod tests {
     #[test]
     fn snapshot_round_trips() {
         let s = Snapshot {
+            run_id: 0x1234_5678_9abc_def0,
             version: SNAPSHOT_VERSION,
             time: 0.5,
             lo: DVec3::ZERO,

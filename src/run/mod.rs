@@ -15,6 +15,7 @@
 pub mod build;
 mod diagnose;
 mod feeder;
+pub mod outdir;
 pub mod recorders;
 
 use std::path::{Path, PathBuf};
@@ -70,6 +71,10 @@ pub fn run_cli(
             PathBuf::from("out").join(stem)
         }
     };
+    if let Some(log) = &opts.log {
+        outdir::check_log_path(log, &out_dir, &[scenario_path])?;
+    }
+    outdir::check_reuse(&out_dir, opts.force)?;
     let summary = run_scenario_with(&scenario, &out_dir, opts)?;
     eprintln!(
         "edpm: {} particles, {} pair and {} wall collisions in {:.2} s CPU; results in {}",
@@ -96,6 +101,9 @@ pub fn run_cli(
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct Summary {
     pub scenario: String,
+    /// The run id (16 hex digits), as in `run.json` and the headers of the
+    /// snapshots and `final_state.bin`.
+    pub run_id: String,
     pub overrides: Vec<String>,
     pub seed: u64,
     pub t_end: f64,
@@ -224,6 +232,11 @@ pub struct RunOptions {
     /// Full-state checkpoints in the log every this many flow steps
     /// (default: 10 per run); a final one is always written.
     pub log_checkpoint_steps: Option<u64>,
+    /// `edpm run` only: run into an output directory holding an earlier
+    /// run's outputs (they are deleted first; [`outdir`]). Without it
+    /// [`run_cli`] refuses such a directory; the library functions always
+    /// delete them.
+    pub force: bool,
 }
 
 /// Runs `s` with `opts` and writes its results into `out_dir`.
@@ -415,13 +428,30 @@ fn simulate<Q: EventQueue>(
         }
         g.initialise(&engine);
     }
+    if let Some(log) = &opts.log {
+        let inputs: Vec<&Path> = s.initial.checkpoint.iter().map(PathBuf::as_path).collect();
+        outdir::check_log_path(log, out_dir, &inputs)?;
+    }
     std::fs::create_dir_all(out_dir).with_context(|| format!("creating {}", out_dir.display()))?;
+    outdir::clear_outputs(out_dir)?;
+    let run_id = outdir::new_run_id();
+    outdir::write_manifest(
+        out_dir,
+        &outdir::manifest(run_id, &s.name, opts.log.as_deref()),
+    )?;
     write_atomic(&out_dir.join("scenario.toml"), s.effective_toml.as_bytes())?;
     let resolved = crate::scenario::resolved_toml(s);
     write_atomic(&out_dir.join("resolved.toml"), resolved.as_bytes())?;
     let plan = FlowSteps::new(s.time.t_end, s.time.dt_flow);
-    let mut recorders =
-        recorders::for_run(s, out_dir, opts, &mut engine, gas.as_ref(), plan.steps)?;
+    let mut recorders = recorders::for_run(
+        s,
+        out_dir,
+        opts,
+        &mut engine,
+        gas.as_ref(),
+        plan.steps,
+        run_id,
+    )?;
     for r in recorders.iter_mut() {
         r.start(&mut engine, gas.as_mut())?;
     }
@@ -451,6 +481,7 @@ fn simulate<Q: EventQueue>(
     let events = engine.counters.pair_collisions + engine.counters.wall_collisions;
     let summary = Summary {
         scenario: s.name.clone(),
+        run_id: crate::io::snapshot::run_id_text(run_id),
         overrides: s.overrides.clone(),
         seed: s.seed,
         t_end: engine.time(),

@@ -15,12 +15,14 @@ use crate::queue::EventQueue;
 
 pub struct FinalState {
     out_dir: PathBuf,
+    run_id: u64,
 }
 
 impl FinalState {
-    pub fn new(out_dir: &Path) -> Self {
+    pub fn new(out_dir: &Path, run_id: u64) -> Self {
         FinalState {
             out_dir: out_dir.to_path_buf(),
+            run_id,
         }
     }
 }
@@ -41,6 +43,7 @@ impl<Q: EventQueue> Recorder<Q> for FinalState {
         }
         let final_particles: Vec<NewParticle> = engine.particles().map(NewParticle::from).collect();
         Checkpoint {
+            run_id: self.run_id,
             version: CHECKPOINT_VERSION,
             time: engine.time(),
             particles: final_particles,

@@ -104,7 +104,8 @@ pub trait Recorder<Q: EventQueue> {
     }
 }
 
-/// The recorders of a run of `s` into `out_dir` with `opts`, in calling
+/// The recorders of a run of `s` into `out_dir` with `opts` (`run_id`
+/// stamps the snapshots and the final state), in calling
 /// order (analysis snapshots tally a step's records before the event log
 /// takes them). Turns the engine's recording on where a recorder reads
 /// records.
@@ -115,6 +116,7 @@ pub fn for_run<Q: EventQueue>(
     engine: &mut Engine<Q>,
     gas: Option<&GasRun>,
     steps: u64,
+    run_id: u64,
 ) -> anyhow::Result<Vec<Box<dyn Recorder<Q>>>> {
     let mut recorders: Vec<Box<dyn Recorder<Q>>> = Vec::new();
     if let Some(interval) = s.output.vtk_interval {
@@ -127,7 +129,7 @@ pub fn for_run<Q: EventQueue>(
     if let Some(interval) = s.output.snapshot_interval {
         engine.set_recording(true);
         recorders.push(Box::new(snapshots::AnalysisSnapshots::new(
-            s, out_dir, interval, gas,
+            s, out_dir, interval, gas, run_id,
         )));
     }
     if let Some(path) = &opts.log {
@@ -137,12 +139,13 @@ pub fn for_run<Q: EventQueue>(
             s, engine, path, every,
         )?));
     }
-    recorders.push(Box::new(time_series::TimeSeries::new(
+    recorders.push(Box::new(time_series::TimeSeries::create(
         out_dir,
         s.output.sample_interval,
         gas.is_some(),
-    )));
-    recorders.push(Box::new(final_state::FinalState::new(out_dir)));
+        engine.model() != crate::engine::ContactModel::Hard,
+    )?));
+    recorders.push(Box::new(final_state::FinalState::new(out_dir, run_id)));
     if s.output.picture_frames > 0 {
         recorders.push(Box::new(picture::Picture::new(
             s,

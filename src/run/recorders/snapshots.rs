@@ -25,10 +25,18 @@ pub struct AnalysisSnapshots {
     count: usize,
     tally: CollisionTally,
     gravity: DVec3,
+    run_id: u64,
 }
 
 impl AnalysisSnapshots {
-    pub fn new(s: &Scenario, out_dir: &Path, interval: f64, gas: Option<&GasRun>) -> Self {
+    /// Snapshots every `interval` (s) stamped with `run_id`.
+    pub fn new(
+        s: &Scenario,
+        out_dir: &Path,
+        interval: f64,
+        gas: Option<&GasRun>,
+        run_id: u64,
+    ) -> Self {
         let grid = match gas {
             Some(g) => TallyGrid {
                 lo: g.gas.grid.lo,
@@ -52,6 +60,7 @@ impl AnalysisSnapshots {
             count: 0,
             tally: CollisionTally::new(grid),
             gravity: s.domain.gravity,
+            run_id,
         }
     }
 
@@ -89,6 +98,7 @@ impl AnalysisSnapshots {
         });
         let t = engine.time();
         let snapshot = Snapshot {
+            run_id: self.run_id,
             version: SNAPSHOT_VERSION,
             time: t,
             lo: domain.lo,

@@ -1,15 +1,17 @@
 //! The time series: `timeseries.csv` (particles, every
 //! `output.sample_interval`) and, in gas runs, `gas_timeseries.csv` (rows
-//! from [`GasRun::sample_row`]).
+//! from [`GasRun::sample_row`]). Both are written as the run goes, one
+//! `write` per row, so a killed run keeps every row computed before it
+//! died (whole lines only).
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use glam::DVec3;
 
 use super::{Recorder, RunEnd, StepEnd, due, next_multiple};
-use crate::engine::{ContactModel, Counters, Engine};
+use crate::engine::{Counters, Engine};
 use crate::gas::flow::{GAS_SERIES_HEADER, GasRun};
-use crate::io::output::CsvTable;
+use crate::io::output::CsvStream;
 use crate::queue::EventQueue;
 
 const TIME_SERIES_HEADER: [&str; 17] = [
@@ -34,11 +36,10 @@ const TIME_SERIES_HEADER: [&str; 17] = [
 
 /// The time series of a run in progress.
 pub struct TimeSeries {
-    out_dir: PathBuf,
     interval: f64,
     next: f64,
-    series: CsvTable,
-    gas_series: Option<CsvTable>,
+    series: CsvStream,
+    gas_series: Option<CsvStream>,
     /// Counters and time at the previous row.
     last: Counters,
     last_time: f64,
@@ -49,33 +50,42 @@ pub struct TimeSeries {
 }
 
 impl TimeSeries {
-    pub fn new(out_dir: &Path, interval: f64, gas: bool) -> Self {
-        TimeSeries {
-            out_dir: out_dir.to_path_buf(),
+    /// Creates `timeseries.csv` (and `gas_timeseries.csv` with `gas`) in
+    /// `out_dir`, with their header lines; a row every `interval` (s).
+    /// `soft` (soft or hybrid model): a last column `soft_fraction`.
+    pub fn create(out_dir: &Path, interval: f64, gas: bool, soft: bool) -> anyhow::Result<Self> {
+        let header = if soft {
+            [&TIME_SERIES_HEADER[..], &["soft_fraction"]].concat()
+        } else {
+            TIME_SERIES_HEADER.to_vec()
+        };
+        Ok(TimeSeries {
             interval,
             next: interval,
-            series: CsvTable::new(&TIME_SERIES_HEADER),
-            gas_series: gas.then(|| CsvTable::new(&GAS_SERIES_HEADER)),
+            series: CsvStream::create(&out_dir.join("timeseries.csv"), &header)?,
+            gas_series: if gas {
+                Some(CsvStream::create(
+                    &out_dir.join("gas_timeseries.csv"),
+                    &GAS_SERIES_HEADER,
+                )?)
+            } else {
+                None
+            },
             last: Counters::default(),
             last_time: 0.0,
             collapse_seen: 0,
-            soft: false,
-        }
+            soft,
+        })
     }
 }
 
 impl<Q: EventQueue> Recorder<Q> for TimeSeries {
     fn start(&mut self, engine: &mut Engine<Q>, gas: Option<&mut GasRun>) -> anyhow::Result<()> {
         if let (Some(series), Some(g)) = (self.gas_series.as_mut(), gas) {
-            series.row(&g.sample_row());
-        }
-        if engine.model() != ContactModel::Hard {
-            self.soft = true;
-            self.series = CsvTable::new(&[&TIME_SERIES_HEADER[..], &["soft_fraction"]].concat());
+            series.row(&g.sample_row())?;
         }
         self.last = engine.counters;
-        sample_interval_row(engine, &mut self.series, &self.last, 0.0, 0, self.soft);
-        Ok(())
+        sample_interval_row(engine, &mut self.series, &self.last, 0.0, 0, self.soft)
     }
 
     fn needs_sync(&self, end: &StepEnd) -> bool {
@@ -101,9 +111,9 @@ impl<Q: EventQueue> Recorder<Q> for TimeSeries {
             t - self.last_time,
             new_reports,
             self.soft,
-        );
+        )?;
         if let (Some(series), Some(g)) = (self.gas_series.as_mut(), gas) {
-            series.row(&g.sample_row());
+            series.row(&g.sample_row())?;
         }
         self.last = engine.counters;
         self.last_time = t;
@@ -112,9 +122,9 @@ impl<Q: EventQueue> Recorder<Q> for TimeSeries {
     }
 
     fn finish(&mut self, _engine: &mut Engine<Q>, _end: &mut RunEnd) -> anyhow::Result<()> {
-        self.series.write(&self.out_dir.join("timeseries.csv"))?;
-        if let Some(series) = &self.gas_series {
-            series.write(&self.out_dir.join("gas_timeseries.csv"))?;
+        self.series.sync()?;
+        if let Some(series) = self.gas_series.as_mut() {
+            series.sync()?;
         }
         Ok(())
     }
@@ -128,12 +138,12 @@ impl<Q: EventQueue> Recorder<Q> for TimeSeries {
 /// a last column: the fraction of the particles moved by soft steps.
 fn sample_interval_row<Q: EventQueue>(
     engine: &Engine<Q>,
-    series: &mut CsvTable,
+    series: &mut CsvStream,
     last: &Counters,
     interval: f64,
     reports: usize,
     soft: bool,
-) {
+) -> anyhow::Result<()> {
     let c = &engine.counters;
     let (ke_t, ke_r) = engine.kinetic_energy();
     let momentum = engine.momentum();
@@ -185,8 +195,8 @@ fn sample_interval_row<Q: EventQueue>(
         centre.z,
     ];
     if soft {
-        series.row(&[&row[..], &[engine.soft_fraction_now()]].concat());
+        series.row(&[&row[..], &[engine.soft_fraction_now()]].concat())
     } else {
-        series.row(&row);
+        series.row(&row)
     }
 }

@@ -1,0 +1,223 @@
+//! The output directory of a run: what `edpm run` writes there, the run id
+//! that ties those files together, and the rules that keep runs apart.
+//!
+//! - `edpm run` into a directory holding an earlier run's outputs refuses
+//!   unless `--force`; with it (and always through the library,
+//!   [`super::run_scenario_with`]) the earlier outputs listed in
+//!   [`OWN_FILES`] and [`OWN_DIRS`] are deleted first, nothing else.
+//! - `--log` may not name a file the run itself writes or reads.
+//! - Every run gets a random run id ([`new_run_id`]), written in
+//!   `run.json`, `summary.json` and the header of every snapshot and
+//!   checkpoint; `edpm analyse` refuses snapshots of different runs.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::Context;
+
+use crate::io::output::write_atomic;
+use crate::io::snapshot::run_id_text;
+
+/// Files a run writes in its output directory.
+pub const OWN_FILES: [&str; 11] = [
+    "run.json",
+    "scenario.toml",
+    "resolved.toml",
+    "summary.json",
+    "timeseries.csv",
+    "gas_timeseries.csv",
+    "final_state.bin",
+    "final_particles.csv",
+    "particles.pvd",
+    "gas.pvd",
+    "particles.png",
+];
+
+/// Directories of a run's (and `edpm analyse`'s) outputs, with the file
+/// name extensions edpm writes in them; only those files are deleted.
+pub const OWN_DIRS: [(&str, &[&str]); 3] = [
+    ("snapshots", &["bin"]),
+    ("vtk", &["vtp", "vti"]),
+    ("analysis", &["csv", "json", "png", "md"]),
+];
+
+/// What `run.json` holds: written first, so that a killed run's directory
+/// is recognised as used.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct RunManifest {
+    /// 16 hex digits, as in the snapshot headers.
+    pub run_id: String,
+    pub scenario: String,
+    /// The event log, when the run writes one.
+    pub log: Option<PathBuf>,
+}
+
+/// A fresh random run id: the wall clock, the process id and the standard
+/// library's randomly keyed hasher mixed together (never 0).
+pub fn new_run_id() -> u64 {
+    use std::hash::{BuildHasher, Hasher};
+    let mut h = std::collections::hash_map::RandomState::new().build_hasher();
+    let now = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos());
+    h.write_u128(now);
+    h.write_u32(std::process::id());
+    h.finish().max(1)
+}
+
+/// The outputs of an earlier run found in `out_dir` (names relative to
+/// it), empty when there are none.
+pub fn earlier_outputs(out_dir: &Path) -> Vec<String> {
+    let mut found: Vec<String> = OWN_FILES
+        .iter()
+        .filter(|f| out_dir.join(f).exists())
+        .map(|f| f.to_string())
+        .collect();
+    for (dir, _) in OWN_DIRS {
+        if out_dir.join(dir).is_dir() {
+            found.push(format!("{dir}/"));
+        }
+    }
+    found
+}
+
+/// Refuses an output directory holding an earlier run's outputs, unless
+/// `force` (then [`clear_outputs`] deletes them when the run starts).
+pub fn check_reuse(out_dir: &Path, force: bool) -> anyhow::Result<()> {
+    let found = earlier_outputs(out_dir);
+    if found.is_empty() || force {
+        return Ok(());
+    }
+    anyhow::bail!(
+        "{}: holds the outputs of an earlier run ({}); a run there would mix them with its own: \
+         choose another --out, or add --force to delete edpm's outputs there first",
+        out_dir.display(),
+        found.join(", ")
+    )
+}
+
+/// Deletes an earlier run's outputs from `out_dir`: the files of
+/// [`OWN_FILES`], the files edpm writes in [`OWN_DIRS`] (a directory left
+/// empty goes too), and the event log named in its `run.json` when that
+/// lies in `out_dir`. Anything else is left alone.
+pub fn clear_outputs(out_dir: &Path) -> anyhow::Result<()> {
+    let remove = |p: &Path| match std::fs::remove_file(p) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+            Err(e).with_context(|| format!("deleting {} of an earlier run", p.display()))
+        }
+        _ => Ok(()),
+    };
+    if let Ok(text) = std::fs::read_to_string(out_dir.join("run.json"))
+        && let Ok(m) = serde_json::from_str::<RunManifest>(&text)
+        && let Some(log) = m.log
+        && resolve(&log).parent() == Some(resolve(out_dir).as_path())
+    {
+        remove(&log)?;
+    }
+    for f in OWN_FILES {
+        remove(&out_dir.join(f))?;
+    }
+    for (dir, extensions) in OWN_DIRS {
+        let dir = out_dir.join(dir);
+        let Ok(entries) = std::fs::read_dir(&dir) else {
+            continue;
+        };
+        for e in entries.filter_map(Result::ok) {
+            let p = e.path();
+            if p.is_file()
+                && p.extension()
+                    .is_some_and(|x| extensions.iter().any(|e| x == *e))
+            {
+                remove(&p)?;
+            }
+        }
+        // Only succeeds when nothing else is in it.
+        let _ = std::fs::remove_dir(&dir);
+    }
+    Ok(())
+}
+
+/// Writes `run.json` at the start of a run.
+pub fn write_manifest(out_dir: &Path, m: &RunManifest) -> anyhow::Result<()> {
+    let json = serde_json::to_string_pretty(m).context("encoding run.json")?;
+    write_atomic(&out_dir.join("run.json"), json.as_bytes())
+}
+
+/// The manifest of a new run.
+pub fn manifest(run_id: u64, scenario: &str, log: Option<&Path>) -> RunManifest {
+    RunManifest {
+        run_id: run_id_text(run_id),
+        scenario: scenario.to_string(),
+        log: log.map(Path::to_path_buf),
+    }
+}
+
+/// `p` as an absolute path with symbolic links resolved as far as it
+/// exists (the file itself need not exist).
+pub fn resolve(p: &Path) -> PathBuf {
+    if let Ok(c) = p.canonicalize() {
+        return c;
+    }
+    let abs = std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf());
+    match (abs.parent(), abs.file_name()) {
+        (Some(dir), Some(name)) => resolve(dir).join(name),
+        _ => abs,
+    }
+}
+
+/// Refuses a `--log` path that the run writes itself (an output in
+/// `out_dir`) or reads (`inputs`: the scenario file, an initial
+/// checkpoint).
+pub fn check_log_path(log: &Path, out_dir: &Path, inputs: &[&Path]) -> anyhow::Result<()> {
+    let log_abs = resolve(log);
+    let out_abs = resolve(out_dir);
+    if log_abs.is_dir() {
+        anyhow::bail!("--log {}: is a directory; give a file name", log.display());
+    }
+    for input in inputs {
+        if resolve(input) == log_abs {
+            anyhow::bail!(
+                "--log {}: is an input of the run ({}); the log would overwrite it",
+                log.display(),
+                input.display()
+            );
+        }
+    }
+    if log_abs.parent() == Some(out_abs.as_path())
+        && let Some(name) = log_abs.file_name().and_then(|n| n.to_str())
+        && OWN_FILES.contains(&name)
+    {
+        anyhow::bail!(
+            "--log {}: the run writes its own {name} there; give another file name",
+            log.display()
+        );
+    }
+    for (dir, _) in OWN_DIRS {
+        if log_abs.starts_with(out_abs.join(dir)) {
+            anyhow::bail!(
+                "--log {}: lies in {}, where the run writes its own files; give another path",
+                log.display(),
+                out_dir.join(dir).display()
+            );
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn run_ids_differ() {
+        assert_ne!(new_run_id(), new_run_id());
+    }
+
+    #[test]
+    fn resolve_handles_missing_files_and_dot_dot() {
+        let here = std::env::current_dir().unwrap().canonicalize().unwrap();
+        assert_eq!(
+            resolve(Path::new("src/../no-such-file.x")),
+            here.join("no-such-file.x")
+        );
+    }
+}
