@@ -35,6 +35,9 @@ pub struct ReplayOutcome {
     pub first_mismatch: Option<String>,
     /// Byte offset where a truncated log stopped.
     pub truncated_at: Option<u64>,
+    /// Byte offset where a log without its end block stops (the run was
+    /// killed, or blocks at its end are missing), when replayed to its end.
+    pub missing_end_at: Option<u64>,
     /// Absolute time of the last record replayed (s).
     pub end_time: f64,
     pub particles: usize,
@@ -47,6 +50,14 @@ pub fn replay_cli(path: &Path, opts: &ReplayOptions) -> anyhow::Result<()> {
     if let Some(offset) = outcome.truncated_at {
         eprintln!(
             "edpm: warning: {} is truncated at byte {offset}; replayed up to time {} s",
+            path.display(),
+            outcome.end_time
+        );
+    }
+    if let Some(offset) = outcome.missing_end_at {
+        eprintln!(
+            "edpm: warning: {} has no end block after byte offset {offset}: the run that wrote it \
+             was killed, or the blocks after that offset are missing; replayed up to time {} s",
             path.display(),
             outcome.end_time
         );
@@ -129,6 +140,7 @@ pub fn replay_log(path: &Path, opts: &ReplayOptions) -> anyhow::Result<(ReplayOu
         checkpoints_verified: 0,
         first_mismatch: None,
         truncated_at: None,
+        missing_end_at: None,
         end_time: 0.0,
         particles: 0,
         stats: None,
@@ -213,12 +225,17 @@ pub fn replay_log(path: &Path, opts: &ReplayOptions) -> anyhow::Result<(ReplayOu
             replay.time,
             if reader.truncated_at.is_some() {
                 " (the log is truncated)"
+            } else if reader.end.is_none() {
+                " (the log has no end block: the run was killed or its last blocks are missing)"
             } else {
                 ""
             }
         );
     }
     outcome.truncated_at = reader.truncated_at;
+    if reached_end && reader.end.is_none() && reader.truncated_at.is_none() {
+        outcome.missing_end_at = Some(reader.offset());
+    }
     outcome.end_time = replay.time;
     outcome.particles = replay.len();
     if let Some(s) = stats.as_mut() {

@@ -1135,8 +1135,9 @@ fn analyse_errors_name_the_problem() {
         &o,
         &[
             "000000.bin",
-            "snapshot version 1",
-            "reads version 2",
+            "snapshot of format version 1",
+            "without checksums",
+            "reads version 3",
             "run the scenario again",
         ],
     );

@@ -311,17 +311,31 @@ fn truncated_corrupted_and_foreign_logs_give_exact_errors() {
     );
 
     // Another format version.
-    let v2 = damaged_copy(&log, "v2.log", |b| {
-        b[8..12].copy_from_slice(&2u32.to_le_bytes())
+    let v3 = damaged_copy(&log, "v3.log", |b| {
+        b[8..12].copy_from_slice(&3u32.to_le_bytes())
     });
-    let err = replay_log(&v2, &ReplayOptions::default())
+    let err = replay_log(&v3, &ReplayOptions::default())
         .unwrap_err()
         .to_string();
     assert_eq!(
         err,
         format!(
-            "{}: event log format version 2 is not supported (this edpm reads version 1)",
-            v2.display()
+            "{}: event log format version 3 is not supported (this edpm reads version 2)",
+            v3.display()
+        )
+    );
+    // A version-1 log (no block sequence numbers) is refused in plain words.
+    let v1 = damaged_copy(&log, "v1.log", |b| {
+        b[8..12].copy_from_slice(&1u32.to_le_bytes())
+    });
+    let err = replay_log(&v1, &ReplayOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert_eq!(
+        err,
+        format!(
+            "{}: event log format version 1 (written by an older edpm, without block sequence numbers) is no longer read; this edpm reads version 2: run the scenario again with --log",
+            v1.display()
         )
     );
 

@@ -25,10 +25,12 @@
 use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::path::{Path, PathBuf};
 
+use edpm::io::container;
 use edpm::io::eventlog::LogReader;
-use edpm::io::output::Checkpoint;
+use edpm::io::output::{CHECKPOINT_KIND, Checkpoint};
 use edpm::io::snapshot::{
-    CollisionTally, GasSnapshot, SNAPSHOT_VERSION, Snapshot, SnapshotParticle, TallyGrid,
+    CollisionTally, GasSnapshot, SNAPSHOT_KIND, SNAPSHOT_VERSION, Snapshot, SnapshotParticle,
+    TallyGrid,
 };
 use edpm::particles::NewParticle;
 use edpm::queue::IndexedHeap;
@@ -625,7 +627,13 @@ fn join_log(p: &LogParts) -> Vec<u8> {
     out.extend_from_slice(&p.header);
     for (h, body) in &p.blocks {
         let mut h = h.clone();
-        h[16..20].copy_from_slice(&crc32fast::hash(body).to_le_bytes());
+        // Version 2: the CRC covers kind, count, length, sequence number
+        // and payload (docs/event-log.md).
+        let mut crc = crc32fast::Hasher::new();
+        crc.update(&h[4..16]);
+        crc.update(&h[20..24]);
+        crc.update(body);
+        h[16..20].copy_from_slice(&crc.finalize().to_le_bytes());
         out.extend_from_slice(&h);
         out.extend_from_slice(body);
     }
@@ -783,11 +791,12 @@ fn checkpoint_setups(dir: &Path) -> Vec<(Scenario, Vec<u8>)> {
         let mut rng = Xoshiro256PlusPlus::seed_from_u64(original.seed);
         let particles = edpm::initial::initial_particles(&original, &mut rng).unwrap();
         let cp = Checkpoint {
+            run_id: 1,
             version: edpm::io::output::CHECKPOINT_VERSION,
             time: 0.5,
             particles,
         };
-        let bytes = bincode::serde::encode_to_vec(&cp, bincode_config()).unwrap();
+        let bytes = container::encode(&CHECKPOINT_KIND, 1, &cp).unwrap();
         // The same scenario without populations, restarting from a file.
         let text = std::fs::read_to_string(&path).unwrap();
         let start = text.find("[[particles]]").unwrap();
@@ -812,9 +821,19 @@ fn fuzz_checkpoints(cases: u64) -> Tally {
     for k in 0..cases {
         let (s, base) = &setups[m.below(setups.len())];
         let bytes = if m.chance(0.3) {
-            let mut b = base.clone();
-            m.bytes(&mut b);
-            b
+            // Raw edits of the payload, wrapped with valid checksums so
+            // that they reach the decoder (half the time), or of the whole
+            // file (caught by the checksums).
+            let cp = Checkpoint::from_bytes(base, "seed").unwrap();
+            let mut b = bincode::serde::encode_to_vec(&cp, bincode_config()).unwrap();
+            if m.chance(0.5) {
+                m.bytes(&mut b);
+                container::encode_payload(&CHECKPOINT_KIND, 1, &b).unwrap()
+            } else {
+                let mut c = container::encode_payload(&CHECKPOINT_KIND, 1, &b).unwrap();
+                m.bytes(&mut c);
+                c
+            }
         } else {
             let mut cp = Checkpoint::from_bytes(base, "seed").unwrap();
             for _ in 0..1 + m.below(3) {
@@ -836,7 +855,7 @@ fn fuzz_checkpoints(cases: u64) -> Tally {
                     _ => {}
                 }
             }
-            bincode::serde::encode_to_vec(&cp, bincode_config()).unwrap()
+            container::encode(&CHECKPOINT_KIND, 1, &cp).unwrap()
         };
         let path = s.initial.checkpoint.clone().unwrap();
         std::fs::write(&path, &bytes).unwrap();
@@ -885,6 +904,7 @@ fn seed_snapshot(gas: bool) -> Snapshot {
         .collect();
     let cells = grid.cells();
     Snapshot {
+        run_id: 1,
         version: SNAPSHOT_VERSION,
         time: 0.1,
         lo: DVec3::ZERO,
@@ -913,8 +933,14 @@ fn fuzz_snapshots(cases: u64) -> Tally {
         let mut s = seeds[m.below(2)].clone();
         let bytes = if m.chance(0.4) {
             let mut b = bincode::serde::encode_to_vec(&s, bincode_config()).unwrap();
-            m.bytes(&mut b);
-            b
+            if m.chance(0.5) {
+                m.bytes(&mut b);
+                container::encode_payload(&SNAPSHOT_KIND, 1, &b).unwrap()
+            } else {
+                let mut c = container::encode_payload(&SNAPSHOT_KIND, 1, &b).unwrap();
+                m.bytes(&mut c);
+                c
+            }
         } else {
             for _ in 0..1 + m.below(3) {
                 match m.below(8) {
@@ -946,7 +972,7 @@ fn fuzz_snapshots(cases: u64) -> Tally {
                     _ => s.collisions = None,
                 }
             }
-            bincode::serde::encode_to_vec(&s, bincode_config()).unwrap()
+            container::encode(&SNAPSHOT_KIND, 1, &s).unwrap()
         };
         std::fs::write(&file, &bytes).unwrap();
         guarded("snapshot", k, &bytes, &mut tally, || {

@@ -572,6 +572,7 @@ fn bad_t_end_option_is_refused() {
 #[test]
 fn damaged_or_unsuitable_checkpoints_are_refused() {
     let cp = edpm::io::output::Checkpoint {
+        run_id: 1,
         version: edpm::io::output::CHECKPOINT_VERSION,
         time: 0.0,
         particles: vec![NewParticle {
@@ -586,13 +587,16 @@ fn damaged_or_unsuitable_checkpoints_are_refused() {
     let path = dir.join("state.bin");
     cp.write(&path).unwrap();
     let mut bytes = std::fs::read(&path).unwrap();
+    let len = bytes.len();
     bytes.extend_from_slice(&[1, 2, 3]);
     let e = edpm::io::output::Checkpoint::from_bytes(&bytes, "state.bin")
         .unwrap_err()
         .to_string();
     assert_eq!(
         e,
-        "state.bin: not a valid edpm checkpoint: 3 unexpected bytes after the particles"
+        format!(
+            "state.bin: 3 unexpected bytes after the end of the checkpoint at byte offset {len}"
+        )
     );
     let text = std::fs::read_to_string(Path::new(ROOT).join("scenarios/box-walls.toml")).unwrap();
     let start = text.find("[[particles]]").unwrap();

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Reader for edpm binary event logs (format version 1, docs/event-log.md).
+"""Reader for edpm binary event logs (format version 2, docs/event-log.md).
 
     from edpm_log import read_log
     log = read_log("run.log")
@@ -29,13 +29,14 @@ try:
 except ImportError:  # the standard-library path below needs nothing else
     np = None
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 FILE_MAGIC = b"EDPMLOG\0"
 BLOCK_MAGIC = b"BLK\0"
 FILE_HEADER_BYTES = 32
 BLOCK_HEADER_BYTES = 24
 CHECKPOINT_HEADER_BYTES = 24
-KIND_RECORDS, KIND_CHECKPOINT = 1, 2
+KIND_RECORDS, KIND_CHECKPOINT, KIND_END = 1, 2, 3
+END_BYTES = 16
 
 # Record kinds (LogRecord.kind) and collision branches (LogRecord.aux).
 PAIR, WALL, WRAP, INSERT, REMOVE, FLOW_STEP_END, KICK = range(1, 8)
@@ -105,7 +106,7 @@ def _concat_columns(tables, fields):
 
 
 class LogError(ValueError):
-    """The file is not a readable version-1 edpm event log."""
+    """The file is not a readable version-2 edpm event log."""
 
 
 class _Cursor:
@@ -167,13 +168,16 @@ def read_log(path, use_numpy=None):
     overrides, seed, dt_flow, domain, densities, initial), plus version,
     records (all record blocks, in file order), checkpoints (list of
     (time, clock, step, particles)), truncated_at (byte offset of an
-    incomplete final block, or None) and reader ("numpy" or "struct").
+    incomplete final block, or None), end (the end block as
+    {"records", "time"}, None for a log without one: a killed run, with a
+    warning) and reader ("numpy" or "struct").
     Tables are numpy structured arrays (RECORD_DTYPE, PARTICLE_DTYPE,
     INITIAL_DTYPE) when numpy is used, else dicts of column lists.
     use_numpy: None uses numpy when it is installed; False never does;
     True requires it.
     Raises LogError on a bad magic, an unsupported version, a checksum
-    mismatch or a malformed block.
+    mismatch, a missing block (a gap in the block sequence numbers) or a
+    malformed block.
     """
     if use_numpy is None:
         use_numpy = np is not None
@@ -184,6 +188,10 @@ def read_log(path, use_numpy=None):
     if len(data) < FILE_HEADER_BYTES or bytes(data[:8]) != FILE_MAGIC:
         raise LogError(f"{path}: not an edpm event log (bad magic)")
     version, length, crc = struct.unpack_from("<3I", data, 8)
+    if version == 1:
+        raise LogError(f"{path}: event log format version 1 (written by an older edpm, without "
+                       f"block sequence numbers) is no longer read; this reader reads version "
+                       f"{FORMAT_VERSION}: run the scenario again with --log")
     if version != FORMAT_VERSION:
         raise LogError(f"{path}: event log format version {version} is not supported "
                        f"(this reader reads version {FORMAT_VERSION})")
@@ -198,28 +206,45 @@ def read_log(path, use_numpy=None):
     except (IndexError, UnicodeDecodeError, struct.error) as e:
         raise LogError(f"{path}: malformed file header ({e})") from None
 
-    record_blocks, checkpoints, truncated_at = [], [], None
+    record_blocks, checkpoints, truncated_at, end_block = [], [], None, None
     at = end
+    seq_expected = 0
     while at < len(data):
         if len(data) - at < BLOCK_HEADER_BYTES:
             truncated_at = at
             break
-        magic, kind, count, length, crc = struct.unpack_from("<4s4I", data, at)
+        magic, kind, count, length, crc, seq = struct.unpack_from("<4s5I", data, at)
         if bytes(magic) != BLOCK_MAGIC:
             raise LogError(f"{path}: malformed block header at byte offset {at}")
         # Kind, count and length must agree before a short file counts as
         # truncation: the block header has no checksum of its own.
         if not ((kind == KIND_RECORDS and length == count * RECORD_BYTES) or
-                (kind == KIND_CHECKPOINT and length == CHECKPOINT_HEADER_BYTES + count * PARTICLE_BYTES)):
+                (kind == KIND_CHECKPOINT and length == CHECKPOINT_HEADER_BYTES + count * PARTICLE_BYTES) or
+                (kind == KIND_END and length == END_BYTES and count == 0)):
             raise LogError(f"{path}: malformed block (unknown kind or size) at byte offset {at}")
         body = at + BLOCK_HEADER_BYTES
         if len(data) - body < length:
             truncated_at = at
             break
         payload = data[body:body + length]
-        if zlib.crc32(payload) != crc:
+        # The CRC covers kind, count, length (bytes 4..16), the sequence
+        # number (20..24) and the payload.
+        header_crc = zlib.crc32(data[at + 20:at + 24], zlib.crc32(data[at + 4:at + 16]))
+        if zlib.crc32(payload, header_crc) != crc:
             raise LogError(f"{path}: checksum mismatch in block at byte offset {at}: "
                            "the log is corrupted from there on")
+        if seq != seq_expected:
+            raise LogError(f"{path}: block {seq_expected} is missing: the block at byte offset "
+                           f"{at} is block {seq}; the log was cut or spliced there")
+        seq_expected += 1
+        if kind == KIND_END:
+            if body + length != len(data):
+                raise LogError(f"{path}: malformed log: {len(data) - body - length} bytes after "
+                               f"the end block at byte offset {body + length}")
+            records, time = struct.unpack_from("<Qd", payload)
+            end_block = {"records": records, "time": time}
+            at = body + length
+            break
         if kind == KIND_RECORDS:
             if use_numpy:
                 record_blocks.append(np.frombuffer(payload, RECORD_DTYPE))
@@ -237,6 +262,9 @@ def read_log(path, use_numpy=None):
     if truncated_at is not None:
         warnings.warn(f"{path}: truncated log, the incomplete block at byte offset "
                       f"{truncated_at} and everything after it are ignored", stacklevel=2)
+    elif end_block is None:
+        warnings.warn(f"{path}: no end block after byte offset {at}: the run that wrote it was "
+                      "killed, or the blocks after that offset are missing", stacklevel=2)
     if use_numpy:
         log["records"] = (np.concatenate(record_blocks) if record_blocks
                           else np.zeros(0, RECORD_DTYPE))
@@ -244,6 +272,7 @@ def read_log(path, use_numpy=None):
         log["records"] = _concat_columns(record_blocks, RECORD_FIELDS)
     log["checkpoints"] = checkpoints
     log["truncated_at"] = truncated_at
+    log["end"] = end_block
     log["reader"] = "numpy" if use_numpy else "struct"
     return log
 
@@ -267,6 +296,7 @@ def summary(log):
         "wall_collisions": _count(kinds, WALL),
         "checkpoints": len(log["checkpoints"]),
         "t_last": max(times) if times else None,
+        "complete": log["end"] is not None,
     }
 
 

@@ -79,6 +79,12 @@ fn bincode_config() -> Config {
 pub fn encode<T: Serialize>(kind: &Kind, run_id: u64, value: &T) -> anyhow::Result<Vec<u8>> {
     let payload = bincode::serde::encode_to_vec(value, bincode_config())
         .with_context(|| format!("encoding {}", kind.what))?;
+    encode_payload(kind, run_id, &payload)
+}
+
+/// An encoded payload wrapped as a data file of `kind` (header, chunk
+/// checksums, payload).
+pub fn encode_payload(kind: &Kind, run_id: u64, payload: &[u8]) -> anyhow::Result<Vec<u8>> {
     let chunks = u32::try_from(payload.len().div_ceil(CHUNK_BYTES))
         .with_context(|| format!("{} exceeds 16 TiB", kind.what))?;
     let mut out = Vec::with_capacity(HEADER_BYTES + 4 * chunks as usize + payload.len());
@@ -97,7 +103,7 @@ pub fn encode<T: Serialize>(kind: &Kind, run_id: u64, value: &T) -> anyhow::Resu
     let header_crc = crc32fast::hash(&out[..44]);
     out.extend_from_slice(&header_crc.to_le_bytes());
     out.extend_from_slice(&table);
-    out.extend_from_slice(&payload);
+    out.extend_from_slice(payload);
     Ok(out)
 }
 

@@ -7,15 +7,20 @@
 //!               header CRC-32 u32, 12 reserved bytes
 //! header        bincode (serde, fixed-int, little-endian) of LogHeader
 //! block*        24-byte block header: magic "BLK\0", kind u32 (1 records,
-//!               2 checkpoint), count u32, payload length u32, payload CRC-32
-//!               u32, reserved u32; then the payload
+//!               2 checkpoint, 3 end), count u32, payload length u32, CRC-32
+//!               u32 (of kind, count, length, sequence and payload),
+//!               sequence number u32 (0, 1, 2, … in file order); then the
+//!               payload
 //! ```
 //!
 //! A records payload is `count` records of exactly [`RECORD_BYTES`] bytes
 //! ([`LogRecord`]). A checkpoint payload is a [`CheckpointHeader`] followed
 //! by `count` particles of exactly [`PARTICLE_BYTES`] bytes
-//! ([`LogParticle`]). Blocks are written whole and flushed, so a killed run
-//! leaves a log that reads up to its last complete block.
+//! ([`LogParticle`]). The end block, written when the run ends, holds the
+//! number of records and the end time ([`LogEnd`]). Blocks are written
+//! whole and flushed, so a killed run leaves a log that reads up to its
+//! last complete block; the sequence numbers and the end block expose a
+//! block missing in the middle or at the end.
 
 use std::io::Write;
 use std::path::Path;
@@ -27,8 +32,9 @@ use crate::domain::Domain;
 use crate::engine::{CollisionRecord, Partner, Record, State};
 use crate::particles::NewParticle;
 
-/// Format version written by this build.
-pub const FORMAT_VERSION: u32 = 1;
+/// Format version written by this build: 2 added block sequence numbers,
+/// the end block, and block checksums that cover the block header.
+pub const FORMAT_VERSION: u32 = 2;
 pub const FILE_MAGIC: [u8; 8] = *b"EDPMLOG\0";
 pub const BLOCK_MAGIC: [u8; 4] = *b"BLK\0";
 /// Size of the fixed file header (bytes).
@@ -41,11 +47,23 @@ pub const RECORD_BYTES: usize = 184;
 pub const PARTICLE_BYTES: usize = 96;
 /// Size of an encoded [`CheckpointHeader`] (bytes).
 pub const CHECKPOINT_HEADER_BYTES: usize = 24;
+/// Size of an end block's payload ([`LogEnd`], bytes).
+pub const END_BYTES: usize = 16;
 /// Records per block: about 750 kB, flushed as one write.
 pub const RECORDS_PER_BLOCK: usize = 4096;
 
 const KIND_RECORDS: u32 = 1;
 const KIND_CHECKPOINT: u32 = 2;
+const KIND_END: u32 = 3;
+
+/// The end block's payload: what a complete log holds.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct LogEnd {
+    /// Records in the whole log.
+    pub records: u64,
+    /// Absolute time at which the run ended (s).
+    pub time: f64,
+}
 
 /// What a record describes ([`LogRecord::kind`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -267,6 +285,8 @@ pub struct LogWriter {
     /// Bytes written so far, including the pending block once flushed.
     pub bytes: u64,
     pub records: u64,
+    /// Blocks written so far: the sequence number of the next block.
+    blocks: u32,
 }
 
 impl LogWriter {
@@ -290,6 +310,7 @@ impl LogWriter {
             pending_count: 0,
             bytes: (FILE_HEADER_BYTES + payload.len()) as u64,
             records: 0,
+            blocks: 0,
         })
     }
 
@@ -321,6 +342,7 @@ impl LogWriter {
             let header = block_header(
                 KIND_RECORDS,
                 self.pending_count as u32,
+                self.next_sequence()?,
                 &block[BLOCK_HEADER_BYTES..],
             )?;
             block[..BLOCK_HEADER_BYTES].copy_from_slice(&header);
@@ -350,49 +372,68 @@ impl LogWriter {
         }
         let count =
             u32::try_from(particles.len()).context("checkpoint holds too many particles")?;
-        let header = block_header(KIND_CHECKPOINT, count, &payload)?;
+        let header = block_header(KIND_CHECKPOINT, count, self.next_sequence()?, &payload)?;
         self.file.write_all(&[&header[..], &payload].concat())?;
         self.bytes += (BLOCK_HEADER_BYTES + payload.len()) as u64;
         Ok(())
     }
+
+    /// Flushes the pending records and writes the end block: the log is
+    /// complete. `time` is the end of the run (s).
+    pub fn finish(&mut self, time: f64) -> anyhow::Result<()> {
+        self.flush()?;
+        let mut payload = Vec::with_capacity(END_BYTES);
+        payload.extend_from_slice(&self.records.to_le_bytes());
+        payload.extend_from_slice(&time.to_le_bytes());
+        let header = block_header(KIND_END, 0, self.next_sequence()?, &payload)?;
+        self.file.write_all(&[&header[..], &payload].concat())?;
+        self.bytes += (BLOCK_HEADER_BYTES + payload.len()) as u64;
+        Ok(())
+    }
+
+    fn next_sequence(&mut self) -> anyhow::Result<u32> {
+        let seq = self.blocks;
+        self.blocks = seq
+            .checked_add(1)
+            .context("the event log exceeds 2^32 blocks")?;
+        Ok(seq)
+    }
 }
 
-/// The 24-byte header of a block with this payload.
-fn block_header(kind: u32, count: u32, payload: &[u8]) -> anyhow::Result<[u8; BLOCK_HEADER_BYTES]> {
+/// The 24-byte header of block number `seq` with this payload.
+fn block_header(
+    kind: u32,
+    count: u32,
+    seq: u32,
+    payload: &[u8],
+) -> anyhow::Result<[u8; BLOCK_HEADER_BYTES]> {
     let mut h = [0u8; BLOCK_HEADER_BYTES];
     h[0..4].copy_from_slice(&BLOCK_MAGIC);
     h[4..8].copy_from_slice(&kind.to_le_bytes());
     h[8..12].copy_from_slice(&count.to_le_bytes());
     let len = u32::try_from(payload.len()).context("log block exceeds 4 GiB")?;
     h[12..16].copy_from_slice(&len.to_le_bytes());
-    h[16..20].copy_from_slice(&crc32fast::hash(payload).to_le_bytes());
+    h[20..24].copy_from_slice(&seq.to_le_bytes());
+    let crc = block_crc(&h, payload);
+    h[16..20].copy_from_slice(&crc.to_le_bytes());
     Ok(h)
 }
 
-/// Decodes a header payload with bincode's allocation limit set to a power
-/// of two of at least twice the payload's length. bincode allocates a
-/// string's bytes before reading them, so without a limit a damaged or
-/// forged length prefix aborts the process with an allocation of up to
-/// 2⁶⁴ bytes; with it, the decoder never claims more than the payload can
-/// hold (the limit is a compile-time constant in bincode 2, hence the
-/// steps).
+/// CRC-32 of a block: its header's kind, count and length (bytes 4..16)
+/// and sequence number (20..24), then its payload.
+fn block_crc(header: &[u8; BLOCK_HEADER_BYTES], payload: &[u8]) -> u32 {
+    let mut h = crc32fast::Hasher::new();
+    h.update(&header[4..16]);
+    h.update(&header[20..24]);
+    h.update(payload);
+    h.finalize()
+}
+
+/// Decodes a header payload; a forged length cannot make the decoder
+/// allocate more than the payload can hold
+/// ([`crate::io::container::decode_bounded`]).
 fn decode_header(payload: &[u8]) -> Result<LogHeader, bincode::error::DecodeError> {
-    fn limited<const N: usize>(payload: &[u8]) -> Result<LogHeader, bincode::error::DecodeError> {
-        let config = bincode::config::standard()
-            .with_little_endian()
-            .with_fixed_int_encoding()
-            .with_limit::<N>();
-        bincode::serde::decode_from_slice(payload, config).map(|(h, _)| h)
-    }
-    match 2 * payload.len() as u64 {
-        n if n <= 1 << 16 => limited::<{ 1 << 16 }>(payload),
-        n if n <= 1 << 20 => limited::<{ 1 << 20 }>(payload),
-        n if n <= 1 << 24 => limited::<{ 1 << 24 }>(payload),
-        n if n <= 1 << 28 => limited::<{ 1 << 28 }>(payload),
-        n if n <= 1 << 30 => limited::<{ 1 << 30 }>(payload),
-        n if n <= 1 << 32 => limited::<{ 1 << 32 }>(payload),
-        _ => limited::<{ 1 << 34 }>(payload),
-    }
+    crate::io::container::decode_bounded(payload).map(|(h, _)| h)
 }
 
 /// Why reading a log stopped early or failed.
@@ -405,11 +446,24 @@ pub enum LogError {
     )]
     Version { file: String, found: u32 },
     #[error(
+        "{file}: event log format version 1 (written by an older edpm, without block sequence numbers) is no longer read; this edpm reads version {FORMAT_VERSION}: run the scenario again with --log"
+    )]
+    OldVersion { file: String },
+    #[error(
         "{file}: checksum mismatch in {what} at byte offset {offset}: the log is corrupted from there on"
     )]
     Checksum {
         file: String,
         what: String,
+        offset: u64,
+    },
+    #[error(
+        "{file}: block {expected} is missing: the block at byte offset {offset} is block {found}; the log was cut or spliced there"
+    )]
+    MissingBlock {
+        file: String,
+        expected: u32,
+        found: u32,
         offset: u64,
     },
     #[error("{file}: malformed {what} at byte offset {offset}")]
@@ -445,6 +499,10 @@ pub struct LogReader {
     pub truncated_at: Option<u64>,
     /// A record buffer handed back by [`LogReader::recycle`].
     spare: Vec<LogRecord>,
+    /// Sequence number the next block must carry.
+    next_seq: u32,
+    /// The end block, once read: the log is complete.
+    pub end: Option<LogEnd>,
 }
 
 impl LogReader {
@@ -468,6 +526,9 @@ impl LogReader {
         }
         let word = |at: usize| u32::from_le_bytes(fixed[at..at + 4].try_into().expect("4 bytes"));
         let version = word(8);
+        if version == 1 {
+            return Err(LogError::OldVersion { file: name });
+        }
         if version != FORMAT_VERSION {
             return Err(LogError::Version {
                 file: name,
@@ -505,6 +566,8 @@ impl LogReader {
             header,
             truncated_at: None,
             spare: Vec::new(),
+            next_seq: 0,
+            end: None,
         })
     }
 
@@ -528,16 +591,18 @@ impl LogReader {
 
     /// Byte offsets and times of the checkpoint blocks from here on, found
     /// by reading block headers only (payloads are skipped, not verified;
-    /// they are when read). Stops quietly at a damaged or truncated block.
-    /// The reader's position is left unchanged.
+    /// they are when read). Stops quietly at a damaged or truncated block;
+    /// a block missing before it (a gap in the sequence numbers) is an
+    /// error. The reader's position is left unchanged.
     pub fn checkpoint_index(&mut self) -> Result<Vec<(u64, f64)>, LogError> {
         use std::io::{Read, Seek, SeekFrom};
         let io = |e: std::io::Error| LogError::Io {
             file: self.name.clone(),
             message: e.to_string(),
         };
-        let start = self.offset;
+        let (start, start_seq) = (self.offset, self.next_seq);
         let mut at = start;
+        let mut seq = start_seq;
         let mut index = Vec::new();
         while self.len - at >= BLOCK_HEADER_BYTES as u64 {
             let mut h = [0u8; BLOCK_HEADER_BYTES];
@@ -548,38 +613,55 @@ impl LogReader {
             if h[0..4] != BLOCK_MAGIC || self.len - at - (BLOCK_HEADER_BYTES as u64) < len {
                 break;
             }
+            if word(20) != seq {
+                return Err(LogError::MissingBlock {
+                    file: self.name.clone(),
+                    expected: seq,
+                    found: word(20),
+                    offset: at,
+                });
+            }
             if word(4) == KIND_CHECKPOINT && len >= 8 {
                 let mut t = [0u8; 8];
                 self.file.read_exact(&mut t).map_err(io)?;
                 index.push((at, f64::from_le_bytes(t)));
             }
             at += BLOCK_HEADER_BYTES as u64 + len;
+            seq = seq.wrapping_add(1);
         }
         self.seek(start)?;
+        self.next_seq = start_seq;
         Ok(index)
     }
 
     /// Continues reading at byte `offset`, which must be a block start
-    /// (from [`LogReader::offset`] or [`LogReader::checkpoint_index`]).
+    /// (from [`LogReader::offset`] or [`LogReader::checkpoint_index`]);
+    /// the block there sets the sequence number expected from then on.
     pub fn seek(&mut self, offset: u64) -> Result<(), LogError> {
-        use std::io::{Seek, SeekFrom};
-        self.file
-            .seek(SeekFrom::Start(offset))
-            .map_err(|e| LogError::Io {
-                file: self.name.clone(),
-                message: e.to_string(),
-            })?;
+        use std::io::{Read, Seek, SeekFrom};
+        let io = |e: std::io::Error| LogError::Io {
+            file: self.name.clone(),
+            message: e.to_string(),
+        };
+        self.file.seek(SeekFrom::Start(offset)).map_err(io)?;
         self.offset = offset;
+        if self.len.saturating_sub(offset) >= BLOCK_HEADER_BYTES as u64 {
+            let mut h = [0u8; BLOCK_HEADER_BYTES];
+            self.file.read_exact(&mut h).map_err(io)?;
+            self.next_seq = u32::from_le_bytes(h[20..24].try_into().expect("4 bytes"));
+            self.file.seek(SeekFrom::Start(offset)).map_err(io)?;
+        }
         Ok(())
     }
 
-    /// The next block, `Ok(None)` at the end of the file or where a
-    /// truncated block starts (then `truncated_at` is set).
+    /// The next block, `Ok(None)` at the end of the file, after the end
+    /// block (then `end` is set) or where a truncated block starts (then
+    /// `truncated_at` is set).
     pub fn next_block(&mut self) -> Result<Option<Block>, LogError> {
         use std::io::Read;
         let start = self.offset;
         let rest = self.len - start;
-        if rest == 0 {
+        if rest == 0 || self.end.is_some() {
             return Ok(None);
         }
         if rest < BLOCK_HEADER_BYTES as u64 {
@@ -601,13 +683,20 @@ impl LogReader {
         if h[0..4] != BLOCK_MAGIC {
             return Err(malformed("block header"));
         }
-        let (kind, count, len, crc) = (word(4), word(8) as usize, word(12) as usize, word(16));
+        let (kind, count, len, crc, seq) = (
+            word(4),
+            word(8) as usize,
+            word(12) as usize,
+            word(16),
+            word(20),
+        );
         // The block header has no checksum of its own: check that kind,
         // count and length agree before taking a short file for truncation,
         // so that a damaged length is reported, not silently cut.
         let consistent = match kind {
             KIND_RECORDS => len == count * RECORD_BYTES,
             KIND_CHECKPOINT => len == CHECKPOINT_HEADER_BYTES + count * PARTICLE_BYTES,
+            KIND_END => len == END_BYTES && count == 0,
             _ => false,
         };
         if !consistent {
@@ -620,12 +709,38 @@ impl LogReader {
         self.buf.resize(len, 0);
         self.file.read_exact(&mut self.buf).map_err(io)?;
         let payload = &self.buf[..];
-        if crc32fast::hash(payload) != crc {
+        if block_crc(&h, payload) != crc {
             return Err(LogError::Checksum {
                 file: self.name.clone(),
                 what: "block".into(),
                 offset: start,
             });
+        }
+        if seq != self.next_seq {
+            return Err(LogError::MissingBlock {
+                file: self.name.clone(),
+                expected: self.next_seq,
+                found: seq,
+                offset: start,
+            });
+        }
+        self.next_seq = seq.wrapping_add(1);
+        let next = start + (BLOCK_HEADER_BYTES + len) as u64;
+        if kind == KIND_END {
+            if next != self.len {
+                return Err(LogError::Malformed {
+                    file: self.name.clone(),
+                    what: format!("log: {} bytes after the end block", self.len - next),
+                    offset: next,
+                });
+            }
+            let f = |at: usize| payload[at..at + 8].try_into().expect("8 bytes");
+            self.end = Some(LogEnd {
+                records: u64::from_le_bytes(f(0)),
+                time: f64::from_le_bytes(f(8)),
+            });
+            self.offset = next;
+            return Ok(None);
         }
         let block = match kind {
             KIND_RECORDS => {
@@ -650,7 +765,7 @@ impl LogReader {
                 Block::Checkpoint(ch, particles)
             }
         };
-        self.offset = start + (BLOCK_HEADER_BYTES + len) as u64;
+        self.offset = next;
         Ok(Some(block))
     }
 }

@@ -434,13 +434,17 @@ fn simulate<Q: EventQueue>(
     }
     std::fs::create_dir_all(out_dir).with_context(|| format!("creating {}", out_dir.display()))?;
     outdir::clear_outputs(out_dir)?;
-    let run_id = outdir::new_run_id();
+    let resolved = crate::scenario::resolved_toml(s);
+    let initial: Vec<_> = engine
+        .particles()
+        .map(crate::particles::NewParticle::from)
+        .collect();
+    let run_id = outdir::run_id(s, &resolved, &initial);
     outdir::write_manifest(
         out_dir,
         &outdir::manifest(run_id, &s.name, opts.log.as_deref()),
     )?;
     write_atomic(&out_dir.join("scenario.toml"), s.effective_toml.as_bytes())?;
-    let resolved = crate::scenario::resolved_toml(s);
     write_atomic(&out_dir.join("resolved.toml"), resolved.as_bytes())?;
     let plan = FlowSteps::new(s.time.t_end, s.time.dt_flow);
     let mut recorders = recorders::for_run(

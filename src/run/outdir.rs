@@ -6,9 +6,13 @@
 //!   [`super::run_scenario_with`]) the earlier outputs listed in
 //!   [`OWN_FILES`] and [`OWN_DIRS`] are deleted first, nothing else.
 //! - `--log` may not name a file the run itself writes or reads.
-//! - Every run gets a random run id ([`new_run_id`]), written in
-//!   `run.json`, `summary.json` and the header of every snapshot and
-//!   checkpoint; `edpm analyse` refuses snapshots of different runs.
+//! - Every run has a run id ([`run_id`]), written in `run.json`,
+//!   `summary.json` and the header of every snapshot and checkpoint;
+//!   `edpm analyse` refuses snapshots of different runs. The id is a hash
+//!   of everything that determines the results (edpm version, scenario,
+//!   initial particles), not a random number: two runs share it exactly
+//!   when they must write the same files, so outputs stay bit-identical
+//!   from run to run.
 
 use std::path::{Path, PathBuf};
 
@@ -16,6 +20,8 @@ use anyhow::Context;
 
 use crate::io::output::write_atomic;
 use crate::io::snapshot::run_id_text;
+use crate::particles::NewParticle;
+use crate::scenario::Scenario;
 
 /// Files a run writes in its output directory.
 pub const OWN_FILES: [&str; 11] = [
@@ -51,17 +57,32 @@ pub struct RunManifest {
     pub log: Option<PathBuf>,
 }
 
-/// A fresh random run id: the wall clock, the process id and the standard
-/// library's randomly keyed hasher mixed together (never 0).
-pub fn new_run_id() -> u64 {
-    use std::hash::{BuildHasher, Hasher};
-    let mut h = std::collections::hash_map::RandomState::new().build_hasher();
-    let now = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_nanos());
-    h.write_u128(now);
-    h.write_u32(std::process::id());
-    h.finish().max(1)
+/// The run id of a run of `s` whose engine holds its initial particles
+/// (`particles`): FNV-1a (64 bit) over the edpm version, the effective and
+/// the resolved scenario TOML, and the bits of every initial particle
+/// (which covers `initial.checkpoint` files). Never 0.
+pub fn run_id(s: &Scenario, resolved_toml: &str, particles: &[NewParticle]) -> u64 {
+    const OFFSET: u64 = 0xcbf2_9ce4_8422_2325;
+    const PRIME: u64 = 0x0000_0100_0000_01b3;
+    let mut h = OFFSET;
+    let mut eat = |bytes: &[u8]| {
+        for &b in bytes {
+            h = (h ^ u64::from(b)).wrapping_mul(PRIME);
+        }
+    };
+    eat(env!("CARGO_PKG_VERSION").as_bytes());
+    eat(s.effective_toml.as_bytes());
+    eat(resolved_toml.as_bytes());
+    for p in particles {
+        for v in [p.pos, p.vel, p.omega] {
+            for x in v.to_array() {
+                eat(&x.to_bits().to_le_bytes());
+            }
+        }
+        eat(&p.radius.to_bits().to_le_bytes());
+        eat(&p.material.to_le_bytes());
+    }
+    h.max(1)
 }
 
 /// The outputs of an earlier run found in `out_dir` (names relative to
@@ -152,16 +173,25 @@ pub fn manifest(run_id: u64, scenario: &str, log: Option<&Path>) -> RunManifest 
 }
 
 /// `p` as an absolute path with symbolic links resolved as far as it
-/// exists (the file itself need not exist).
+/// exists (the file itself need not exist); `.` and `..` in the part that
+/// does not exist are resolved lexically.
 pub fn resolve(p: &Path) -> PathBuf {
-    if let Ok(c) = p.canonicalize() {
-        return c;
-    }
+    use std::path::Component;
     let abs = std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf());
-    match (abs.parent(), abs.file_name()) {
-        (Some(dir), Some(name)) => resolve(dir).join(name),
-        _ => abs,
+    let mut out = PathBuf::new();
+    for c in abs.components() {
+        match c {
+            Component::ParentDir => {
+                out.pop();
+            }
+            Component::CurDir => {}
+            c => out.push(c),
+        }
+        if let Ok(real) = out.canonicalize() {
+            out = real;
+        }
     }
+    out
 }
 
 /// Refuses a `--log` path that the run writes itself (an output in
@@ -206,11 +236,6 @@ pub fn check_log_path(log: &Path, out_dir: &Path, inputs: &[&Path]) -> anyhow::R
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn run_ids_differ() {
-        assert_ne!(new_run_id(), new_run_id());
-    }
 
     #[test]
     fn resolve_handles_missing_files_and_dot_dot() {

@@ -121,7 +121,7 @@ impl<Q: EventQueue> Recorder<Q> for EventLog {
 
     fn finish(&mut self, engine: &mut Engine<Q>, end: &mut RunEnd) -> anyhow::Result<()> {
         self.drain(engine)?;
-        self.writer.flush()?;
+        self.writer.finish(engine.time())?;
         end.log_bytes = Some(self.writer.bytes);
         Ok(())
     }
