@@ -326,8 +326,8 @@ fn a_reused_out_dir_is_refused_unless_forced_and_analyse_refuses_mixed_runs() {
         error_line(&o),
         format!(
             "{}: holds the outputs of an earlier run (run.json, scenario.toml, resolved.toml, summary.json, \
-             timeseries.csv, final_state.bin, final_particles.csv, snapshots/); a run there would mix them \
-             with its own: choose another --out, or add --force to delete edpm's outputs there first",
+             timeseries.csv, final_state.bin, final_particles.csv, particles.png, snapshots/); a run there \
+             would mix them with its own: choose another --out, or add --force to delete edpm's outputs there first",
             out.display()
         )
     );
