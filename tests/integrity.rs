@@ -336,6 +336,9 @@ fn a_reused_out_dir_is_refused_unless_forced_and_analyse_refuses_mixed_runs() {
         summary_before
     );
     assert_eq!(snaps(&out), 11);
+    // Temporaries of atomic writes that a kill cut short.
+    std::fs::write(out.join(".summary.json.tmp"), "{").unwrap();
+    std::fs::write(out.join("snapshots/.000011.bin.tmp"), "x").unwrap();
     // Forced: the earlier outputs go (5 snapshots remain, not 11), the
     // user's own file stays, and analyse sees one run.
     run_ok(
@@ -350,6 +353,8 @@ fn a_reused_out_dir_is_refused_unless_forced_and_analyse_refuses_mixed_runs() {
         ],
     );
     assert_eq!(snaps(&out), 5);
+    assert!(!out.join(".summary.json.tmp").exists());
+    assert!(!out.join("snapshots/.000011.bin.tmp").exists());
     assert_eq!(
         std::fs::read_to_string(out.join("notes.txt")).unwrap(),
         "mine"

@@ -124,7 +124,10 @@ fn python_reader_agrees_with_the_run_summary() {
     let got = summary_line(&["--no-numpy"], &log);
     assert_eq!(got["reader"], "struct", "{got}");
     assert_eq!(json_u64(&got, "version"), 2);
-    assert_eq!(got["complete"], true, "a finished run's log has its end block");
+    assert_eq!(
+        got["complete"], true,
+        "a finished run's log has its end block"
+    );
     assert!(json_u64(&got, "records") > 0, "no records in {got}");
     assert!(
         json_u64(&got, "pair_collisions") > 0,

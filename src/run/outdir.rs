@@ -40,10 +40,11 @@ pub const OWN_FILES: [&str; 11] = [
 
 /// Directories of a run's (and `edpm analyse`'s) outputs, with the file
 /// name extensions edpm writes in them; only those files are deleted.
+/// (`tmp`: the temporary files of atomic writes that a killed run left.)
 pub const OWN_DIRS: [(&str, &[&str]); 3] = [
-    ("snapshots", &["bin"]),
-    ("vtk", &["vtp", "vti"]),
-    ("analysis", &["csv", "json", "png", "md"]),
+    ("snapshots", &["bin", "tmp"]),
+    ("vtk", &["vtp", "vti", "tmp"]),
+    ("analysis", &["csv", "json", "png", "md", "tmp"]),
 ];
 
 /// What `run.json` holds: written first, so that a killed run's directory
@@ -117,9 +118,10 @@ pub fn check_reuse(out_dir: &Path, force: bool) -> anyhow::Result<()> {
 }
 
 /// Deletes an earlier run's outputs from `out_dir`: the files of
-/// [`OWN_FILES`], the files edpm writes in [`OWN_DIRS`] (a directory left
-/// empty goes too), and the event log named in its `run.json` when that
-/// lies in `out_dir`. Anything else is left alone.
+/// [`OWN_FILES`] (and their temporaries `.NAME.tmp`), the files edpm
+/// writes in [`OWN_DIRS`] (a directory left empty goes too), and the event
+/// log named in its `run.json` when that lies in `out_dir`. Anything else
+/// is left alone.
 pub fn clear_outputs(out_dir: &Path) -> anyhow::Result<()> {
     let remove = |p: &Path| match std::fs::remove_file(p) {
         Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
@@ -136,6 +138,8 @@ pub fn clear_outputs(out_dir: &Path) -> anyhow::Result<()> {
     }
     for f in OWN_FILES {
         remove(&out_dir.join(f))?;
+        // The temporary file of an atomic write cut short by a kill.
+        remove(&out_dir.join(format!(".{f}.tmp")))?;
     }
     for (dir, extensions) in OWN_DIRS {
         let dir = out_dir.join(dir);
