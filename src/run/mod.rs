@@ -439,7 +439,7 @@ fn simulate<Q: EventQueue>(
         .particles()
         .map(crate::particles::NewParticle::from)
         .collect();
-    let run_id = outdir::run_id(s, &resolved, &initial);
+    let run_id = outdir::run_id(&resolved, &initial);
     outdir::write_manifest(
         out_dir,
         &outdir::manifest(run_id, &s.name, opts.log.as_deref()),

@@ -21,7 +21,6 @@ use anyhow::Context;
 use crate::io::output::write_atomic;
 use crate::io::snapshot::run_id_text;
 use crate::particles::NewParticle;
-use crate::scenario::Scenario;
 
 /// Files a run writes in its output directory.
 pub const OWN_FILES: [&str; 11] = [
@@ -58,11 +57,13 @@ pub struct RunManifest {
     pub log: Option<PathBuf>,
 }
 
-/// The run id of a run of `s` whose engine holds its initial particles
-/// (`particles`): FNV-1a (64 bit) over the edpm version, the effective and
-/// the resolved scenario TOML, and the bits of every initial particle
-/// (which covers `initial.checkpoint` files). Never 0.
-pub fn run_id(s: &Scenario, resolved_toml: &str, particles: &[NewParticle]) -> u64 {
+/// The run id of a run whose resolved scenario (every default filled in,
+/// `crate::scenario::resolved_toml`) is `resolved_toml` and whose engine
+/// holds the initial `particles`: FNV-1a (64 bit) over the edpm version,
+/// the resolved TOML and the bits of every initial particle (which covers
+/// the content of an `initial.checkpoint`). A run from a `resolved.toml`
+/// gets the id of the run that wrote it. Never 0.
+pub fn run_id(resolved_toml: &str, particles: &[NewParticle]) -> u64 {
     const OFFSET: u64 = 0xcbf2_9ce4_8422_2325;
     const PRIME: u64 = 0x0000_0100_0000_01b3;
     let mut h = OFFSET;
@@ -72,7 +73,6 @@ pub fn run_id(s: &Scenario, resolved_toml: &str, particles: &[NewParticle]) -> u
         }
     };
     eat(env!("CARGO_PKG_VERSION").as_bytes());
-    eat(s.effective_toml.as_bytes());
     eat(resolved_toml.as_bytes());
     for p in particles {
         for v in [p.pos, p.vel, p.omega] {
