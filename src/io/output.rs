@@ -213,7 +213,8 @@ pub const CHECKPOINT_KIND: Kind = Kind {
 /// A full particle state, loadable with `[initial] checkpoint = ...`.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Checkpoint {
-    /// The run that wrote it (in the container header, not the payload).
+    /// In the container header, not the payload: 0 for the checkpoints
+    /// edpm writes (a state is the same whichever run reached it).
     #[serde(skip)]
     pub run_id: u64,
     pub version: u32,

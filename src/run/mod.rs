@@ -102,7 +102,7 @@ pub fn run_cli(
 pub struct Summary {
     pub scenario: String,
     /// The run id (16 hex digits), as in `run.json` and the headers of the
-    /// snapshots and `final_state.bin`.
+    /// snapshots.
     pub run_id: String,
     pub overrides: Vec<String>,
     pub seed: u64,

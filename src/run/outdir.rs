@@ -7,7 +7,7 @@
 //!   [`OWN_FILES`] and [`OWN_DIRS`] are deleted first, nothing else.
 //! - `--log` may not name a file the run itself writes or reads.
 //! - Every run has a run id ([`run_id`]), written in `run.json`,
-//!   `summary.json` and the header of every snapshot and checkpoint;
+//!   `summary.json` and the header of every snapshot;
 //!   `edpm analyse` refuses snapshots of different runs. The id is a hash
 //!   of everything that determines the results (edpm version, scenario,
 //!   initial particles), not a random number: two runs share it exactly

@@ -15,14 +15,12 @@ use crate::queue::EventQueue;
 
 pub struct FinalState {
     out_dir: PathBuf,
-    run_id: u64,
 }
 
 impl FinalState {
-    pub fn new(out_dir: &Path, run_id: u64) -> Self {
+    pub fn new(out_dir: &Path) -> Self {
         FinalState {
             out_dir: out_dir.to_path_buf(),
-            run_id,
         }
     }
 }
@@ -43,7 +41,9 @@ impl<Q: EventQueue> Recorder<Q> for FinalState {
         }
         let final_particles: Vec<NewParticle> = engine.particles().map(NewParticle::from).collect();
         Checkpoint {
-            run_id: self.run_id,
+            // A checkpoint is a state, the same whichever run reached it:
+            // no run id, so that equal states give equal files.
+            run_id: 0,
             version: CHECKPOINT_VERSION,
             time: engine.time(),
             particles: final_particles,

@@ -105,7 +105,7 @@ pub trait Recorder<Q: EventQueue> {
 }
 
 /// The recorders of a run of `s` into `out_dir` with `opts` (`run_id`
-/// stamps the snapshots and the final state), in calling
+/// stamps the snapshots), in calling
 /// order (analysis snapshots tally a step's records before the event log
 /// takes them). Turns the engine's recording on where a recorder reads
 /// records.
@@ -145,7 +145,7 @@ pub fn for_run<Q: EventQueue>(
         gas.is_some(),
         engine.model() != crate::engine::ContactModel::Hard,
     )?));
-    recorders.push(Box::new(final_state::FinalState::new(out_dir, run_id)));
+    recorders.push(Box::new(final_state::FinalState::new(out_dir)));
     if s.output.picture_frames > 0 {
         recorders.push(Box::new(picture::Picture::new(
             s,
