@@ -99,6 +99,9 @@ enum Command {
         /// Time averages of FILE.csv:COLUMN columns start here (s).
         #[arg(long, default_value_t = 0.0)]
         average_after: f64,
+        /// Re-run points whose directories hold an earlier sweep's outputs.
+        #[arg(long)]
+        force: bool,
     },
     /// Rebuild a run from its event log alone.
     Replay {
@@ -289,6 +292,7 @@ fn main() -> ExitCode {
             jobs,
             columns,
             average_after,
+            force,
         } => edpm::sweep::sweep_cli(
             &scenario,
             &edpm::sweep::SweepOptions {
@@ -300,6 +304,7 @@ fn main() -> ExitCode {
                 }),
                 columns,
                 average_after,
+                force,
             },
         ),
         Command::Replay {

@@ -34,6 +34,9 @@ pub struct SweepOptions {
     pub columns: Vec<String>,
     /// Start of the time averages of `FILE.csv:COLUMN` columns (s).
     pub average_after: f64,
+    /// Re-run points whose directories hold an earlier sweep's outputs
+    /// (`edpm run --force` for each); without it such a sweep is refused.
+    pub force: bool,
 }
 
 /// Columns when none are chosen; `gas_timeseries.csv:pressure_drop_mean_Pa`
@@ -166,7 +169,7 @@ fn run_point(
     scenario: &Path,
     overrides: &[String],
     dir: &Path,
-    t_end: Option<f64>,
+    opts: &SweepOptions,
 ) -> PointResult {
     let start = std::time::Instant::now();
     let mut cmd = std::process::Command::new(exe);
@@ -175,8 +178,11 @@ fn run_point(
         .arg("--quiet")
         .arg("--out")
         .arg(dir);
-    if let Some(t) = t_end {
+    if let Some(t) = opts.t_end {
         cmd.arg("--t-end").arg(format!("{t:?}"));
+    }
+    if opts.force {
+        cmd.arg("--force");
     }
     for o in overrides {
         cmd.arg("--set").arg(o);
@@ -222,6 +228,20 @@ pub fn sweep_cli(scenario: &Path, opts: &SweepOptions) -> anyhow::Result<()> {
     let dirs: Vec<PathBuf> = (0..points.len())
         .map(|i| opts.out.join(format!("point-{i:03}")))
         .collect();
+    let used: Vec<String> = dirs
+        .iter()
+        .filter(|d| !crate::run::outdir::earlier_outputs(d).is_empty())
+        .map(|d| d.display().to_string())
+        .collect();
+    if !used.is_empty() && !opts.force {
+        bail!(
+            "{} of {} point directories hold an earlier sweep's outputs ({}): choose another --out, \
+             or add --force to re-run them",
+            used.len(),
+            points.len(),
+            used.join(", ")
+        );
+    }
     let results = run_points(scenario, &points, &dirs, opts)?;
     write_tables(scenario, opts, &axes, &points, &dirs, &results)?;
     let failed: Vec<String> = results
@@ -266,7 +286,7 @@ fn run_points(
                     if i >= points.len() {
                         break;
                     }
-                    let r = run_point(&exe, scenario, &points[i], &dirs[i], opts.t_end);
+                    let r = run_point(&exe, scenario, &points[i], &dirs[i], opts);
                     let n = done.fetch_add(1, Ordering::Relaxed) + 1;
                     eprintln!(
                         "edpm sweep: {n}/{} done: {} ({}, {:.1} s)",

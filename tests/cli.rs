@@ -624,6 +624,44 @@ fn sweep_runs_the_grid_and_tabulates_each_point() {
     ]);
     assert_clean_failure(&o, &["point 1", "collisions.default.e_n=1.5", "e_n"]);
     assert!(!bad.join("point-000").exists());
+
+    // The same sweep again into the same directory is refused before
+    // anything runs; with --force it re-runs every point, identically.
+    let again = |force: bool| {
+        let mut args = vec![
+            "sweep",
+            "scenarios/box-walls.toml",
+            "--set",
+            "collisions.default.e_n=0.8,1.0",
+            "--set",
+            "particles.0.count=50,100,150",
+            "--t-end",
+            "0.02",
+            "--out",
+            out.to_str().unwrap(),
+            "--columns",
+            "counters.pair_collisions,timeseries.csv:granular_temperature_m2_s2",
+            "--average-after",
+            "0.01",
+        ];
+        if force {
+            args.push("--force");
+        }
+        edpm(&args)
+    };
+    assert_clean_failure(&again(false), &["6 of 6 point directories", "--force"]);
+    assert_success(&again(true));
+    let rerun = std::fs::read_to_string(out.join("sweep.csv")).unwrap();
+    let strip_wall = |t: &str| -> Vec<String> {
+        t.lines()
+            .map(|l| {
+                let mut c: Vec<&str> = l.split(',').collect();
+                c.remove(4); // wall_seconds
+                c.join(",")
+            })
+            .collect()
+    };
+    assert_eq!(strip_wall(&rerun), strip_wall(&csv));
 }
 
 /// The first command of the README (its first ```sh block), as arguments
