@@ -71,6 +71,49 @@ fn legend_never_covers_data_when_lines_fill_every_corner() {
     assert!(legend_corner(&lines, &layout.x_axis, &tight, lw, lh).1 > 0);
 }
 
+#[test]
+fn parity_legend_never_covers_data() {
+    // Points in all four corners of a shared (square) range.
+    let corners = vec![
+        (1.0, 1.0),
+        (1.0, 10.0),
+        (10.0, 1.0),
+        (10.0, 10.0),
+        (5.0, 5.0),
+    ];
+    let layers = vec![Layer {
+        label: "a long legend entry for the measured points".to_string(),
+        color: palette(0),
+        points: corners,
+        line: None,
+        marker: Some((Marker::ALL[0], 5)),
+        include_in_range: true,
+        guide: false,
+    }];
+    let fig = XyFigure {
+        size: (1000, 1000),
+        title: "t",
+        x_label: "x",
+        y_label: "y",
+        log_x: false,
+        log_y: false,
+        square: true,
+        x_pad: 0.0,
+    };
+    let layout = xy_layout(&fig, &layers).unwrap();
+    assert_eq!(layout.x_axis.hi, layout.y_axis.hi, "the axes stay equal");
+    let side = (layout.size.0 - XY_MARGIN - layout.left - layout.right) as f64;
+    let (lw, lh) = legend_extent(&layers, side, side).unwrap();
+    let lines: Vec<Vec<Vec<(f64, f64)>>> = layers
+        .iter()
+        .map(|l| polylines(&l.points, false, false))
+        .collect();
+    assert_eq!(
+        legend_corner(&lines, &layout.x_axis, &layout.y_axis, lw, lh).1,
+        0
+    );
+}
+
 fn tmp_dir(name: &str) -> std::path::PathBuf {
     let d = std::env::temp_dir().join(format!("edpm_plot_{}_{name}", std::process::id()));
     std::fs::create_dir_all(&d).unwrap();

@@ -212,7 +212,7 @@ pub(super) fn xy_layout(fig: &XyFigure, layers: &[Layer]) -> anyhow::Result<XyLa
             .flat_map(|l| l.points.iter().copied())
             .filter(|&(x, y)| to_axis(x, fig.log_x).is_some() && to_axis(y, fig.log_y).is_some())
     };
-    let (x_axis, mut y_axis) = if fig.square {
+    let (mut x_axis, mut y_axis) = if fig.square {
         // The first layer (y = x) spans the shared range exactly.
         let x = Axis::fit(range_pts().flat_map(|(x, y)| [x, y]), fig.log_x, 0.0, 8);
         let y = x.clone();
@@ -232,21 +232,33 @@ pub(super) fn xy_layout(fig: &XyFigure, layers: &[Layer]) -> anyhow::Result<XyLa
         .map_or(0, |&v| text_width(TICK_FONT, &x_axis.label(v)));
     let right = (last_x / 2 + 12).max(30);
     let (w, mut h) = fig.size;
+    let lines = || -> Vec<Vec<Vec<(f64, f64)>>> {
+        layers
+            .iter()
+            .map(|l| polylines(&l.points, fig.log_x, fig.log_y))
+            .collect()
+    };
     if fig.square {
-        // Height making the plotting area square.
+        // Height making the plotting area square; when every corner of the
+        // legend would cover data, both (shared) axes grow so that the band
+        // above the data is empty.
         let side = w.saturating_sub(XY_MARGIN + left + right).max(100);
         h = TITLE_H + XY_TOP_MARGIN + side + bottom + XY_MARGIN;
+        if let Some((lw, lh)) = legend_extent(layers, side as f64, side as f64)
+            && legend_corner(&lines(), &x_axis, &y_axis, lw, lh).1 > 0
+            && lh < 0.6
+        {
+            let values = range_pts().flat_map(|(x, y)| [x, y]);
+            x_axis = Axis::fit_below(values, fig.log_x, 0.0, 8, lh + 0.02);
+            y_axis = x_axis.clone();
+        }
     } else {
         // When every corner of the legend would cover data, raise the top
         // of the y axis so that the legend's band above the data is empty.
         let plot_w = w.saturating_sub(XY_MARGIN + left + right) as f64;
         let plot_h = h.saturating_sub(TITLE_H + XY_TOP_MARGIN + bottom + XY_MARGIN) as f64;
         if let Some((lw, lh)) = legend_extent(layers, plot_w, plot_h) {
-            let lines: Vec<Vec<Vec<(f64, f64)>>> = layers
-                .iter()
-                .map(|l| polylines(&l.points, fig.log_x, fig.log_y))
-                .collect();
-            if legend_corner(&lines, &x_axis, &y_axis, lw, lh).1 > 0 && lh < 0.6 {
+            if legend_corner(&lines(), &x_axis, &y_axis, lw, lh).1 > 0 && lh < 0.6 {
                 y_axis = Axis::fit_below(range_pts().map(|p| p.1), fig.log_y, 0.05, 8, lh + 0.02);
             }
         }
