@@ -257,10 +257,11 @@ pub(super) fn xy_layout(fig: &XyFigure, layers: &[Layer]) -> anyhow::Result<XyLa
         // of the y axis so that the legend's band above the data is empty.
         let plot_w = w.saturating_sub(XY_MARGIN + left + right) as f64;
         let plot_h = h.saturating_sub(TITLE_H + XY_TOP_MARGIN + bottom + XY_MARGIN) as f64;
-        if let Some((lw, lh)) = legend_extent(layers, plot_w, plot_h) {
-            if legend_corner(&lines(), &x_axis, &y_axis, lw, lh).1 > 0 && lh < 0.6 {
-                y_axis = Axis::fit_below(range_pts().map(|p| p.1), fig.log_y, 0.05, 8, lh + 0.02);
-            }
+        if let Some((lw, lh)) = legend_extent(layers, plot_w, plot_h)
+            && legend_corner(&lines(), &x_axis, &y_axis, lw, lh).1 > 0
+            && lh < 0.6
+        {
+            y_axis = Axis::fit_below(range_pts().map(|p| p.1), fig.log_y, 0.05, 8, lh + 0.02);
         }
     }
     Ok(XyLayout {
