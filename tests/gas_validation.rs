@@ -5,11 +5,11 @@
 //! are `edpm::validate::gas_flow`'s, shared with `edpm validate`.
 
 use edpm::engine::ParticleView;
+use edpm::gas::PressureSolverKind;
 use edpm::gas::coupling::Coupling;
 use edpm::gas::drag::terminal_velocity;
 use edpm::gas::solver::GasPhase;
 use edpm::gas::{DragLaw, GasFace, GasModel, GridGeometry, PlanarPorosity, PorosityMapping};
-use edpm::gas::PressureSolverKind;
 use edpm::scenario::Scenario;
 use edpm::validate::gas_flow::{
     buoyant_terminal_velocity, fixed_bed, fixed_particle as particle, gas_config as config,

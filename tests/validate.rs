@@ -58,7 +58,9 @@ fn quick_catalogue_passes_and_reports_every_case() {
         assert_eq!(row["pass"], true, "{name}");
         assert!(row["cpu_seconds"].as_f64().unwrap() >= 0.0);
         assert!(
-            stdout.lines().any(|l| l.starts_with("PASS ") && l.contains(name.as_str())),
+            stdout
+                .lines()
+                .any(|l| l.starts_with("PASS ") && l.contains(name.as_str())),
             "no line for {name}"
         );
         let table_row = format!("| {} | {name} |", k + 1);

@@ -108,7 +108,12 @@ fn hard_normal() -> Measurement {
     };
     let (a2, b2, _) = collide(DVec3::X, &a, &b, &p);
     let mut parts = vector_parts("v_a", a2.vel, DVec3::new(1.05, 0.0, 0.0), 2.0);
-    parts.extend(vector_parts("v_b", b2.vel, DVec3::new(-0.35, 0.0, 0.0), 2.0));
+    parts.extend(vector_parts(
+        "v_b",
+        b2.vel,
+        DVec3::new(-0.35, 0.0, 0.0),
+        2.0,
+    ));
     Measurement::new(parts)
 }
 
@@ -162,7 +167,12 @@ fn hard_oblique_sliding() -> Measurement {
     let (a2, b2, _) = collide(DVec3::X, &a, &b, &p);
     let spin = DVec3::new(0.0, 0.0, 0.45);
     let mut parts = vector_parts("v_a", a2.vel, DVec3::new(-0.1, 1.91, 0.0), 1.0);
-    parts.extend(vector_parts("v_b", b2.vel, DVec3::new(-0.9, 0.09, 0.0), 1.0));
+    parts.extend(vector_parts(
+        "v_b",
+        b2.vel,
+        DVec3::new(-0.9, 0.09, 0.0),
+        1.0,
+    ));
     parts.extend(vector_parts("R ω_a", 0.5 * a2.omega, 0.5 * spin, 1.0));
     parts.extend(vector_parts("R ω_b", 0.5 * b2.omega, 0.5 * spin, 1.0));
     Measurement::new(parts)

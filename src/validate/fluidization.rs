@@ -279,7 +279,15 @@ fn fluidized(mode: Mode, planar: bool) -> Measurement {
         fluidized_bed_3d(&[format!("time.t_end={t_end}")])
     };
     let result = scenario.and_then(|s| {
-        pressure_balance(&s, t_from, if planar { "validate-planar" } else { "validate-3d" })
+        pressure_balance(
+            &s,
+            t_from,
+            if planar {
+                "validate-planar"
+            } else {
+                "validate-3d"
+            },
+        )
     });
     let part = match result {
         Ok(b) if b.particles == expected => Part::relative(

@@ -301,7 +301,10 @@ y_hi = "outlet"
     let v = settling_velocity(&s, &format!("settling-{coupling}"))?;
     let g = s.gas.as_ref().expect("[gas]");
     let rho_g = g.model.density(g.pressure);
-    Ok((v, terminal_velocity(100e-6, 2500.0, rho_g, g.viscosity, 9.81)))
+    Ok((
+        v,
+        terminal_velocity(100e-6, 2500.0, rho_g, g.viscosity, 9.81),
+    ))
 }
 
 /// Settling velocity (m/s) of one 2 mm sphere of 1500 kg/m³ in water

@@ -304,9 +304,7 @@ fn haff(mode: Mode, planar: bool) -> Measurement {
         })
         .collect();
     let mut reference = vec![(0.0, 1.0)];
-    reference.extend(
-        (1..=50).map(|k| (0.2 * k as f64, (-haff_loss(e, d) * 0.2 * k as f64).exp())),
-    );
+    reference.extend((1..=50).map(|k| (0.2 * k as f64, (-haff_loss(e, d) * 0.2 * k as f64).exp())));
     let mut measured = vec![(0.0, 1.0)];
     measured.extend(dev.iter().map(|&(tau, t, _)| (tau, t)));
     Measurement::new(parts).with_curve(Curve {
@@ -485,7 +483,8 @@ pub fn collision_frequency(n: usize, packing: f64, planar: bool, tau: f64) -> (f
     run_to(&mut engine, 15.0);
     let (c0, t0) = (engine.counters.pair_collisions, engine.time());
     run_to(&mut engine, tau);
-    let frequency = 2.0 * (engine.counters.pair_collisions - c0) as f64 / (count * (engine.time() - t0));
+    let frequency =
+        2.0 * (engine.counters.pair_collisions - c0) as f64 / (count * (engine.time() - t0));
     let (dims, _) = if planar { (2.0, 1.0) } else { (3.0, 3.0) };
     let (t, _) = temperatures(&engine, dims, 3.0);
     let pi = std::f64::consts::PI;
@@ -511,7 +510,10 @@ fn enskog_frequency(mode: Mode, planar: bool) -> Measurement {
     let (n, tau, tol) = mode.pick((4000, 100.0, 0.015), (1000, 50.0, 0.03));
     let (measured, enskog) = collision_frequency(n, 0.3, planar, tau);
     Measurement::new(vec![Part::relative(
-        format!("{} at 0.3, {n} particles", if planar { "disks" } else { "spheres" }),
+        format!(
+            "{} at 0.3, {n} particles",
+            if planar { "disks" } else { "spheres" }
+        ),
         measured,
         enskog,
         tol,
@@ -599,7 +601,10 @@ fn momentum_and_energy_balance(mode: Mode) -> Measurement {
             1e-10,
         ));
         parts.push(Part::scaled(
-            format!("{what}: energy lost − dissipated, over E0 (lost {:.3} E0)", lost / e0),
+            format!(
+                "{what}: energy lost − dissipated, over E0 (lost {:.3} E0)",
+                lost / e0
+            ),
             lost - dissipated,
             0.0,
             e0,

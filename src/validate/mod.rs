@@ -61,7 +61,12 @@ pub struct Part {
 
 impl Part {
     /// Relative error `(measured − reference) / reference`.
-    pub fn relative(label: impl Into<String>, measured: f64, reference: f64, tolerance: f64) -> Part {
+    pub fn relative(
+        label: impl Into<String>,
+        measured: f64,
+        reference: f64,
+        tolerance: f64,
+    ) -> Part {
         Part {
             label: label.into(),
             measured,

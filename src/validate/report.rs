@@ -141,7 +141,10 @@ fn error_figure(path: &Path, results: &[CaseResult]) -> anyhow::Result<()> {
         .enumerate()
         .map(|(i, r)| {
             let q = r.error.abs() / r.tolerance;
-            ((i + 1) as f64, if q.is_finite() { q.max(1e-6) } else { 1e3 })
+            (
+                (i + 1) as f64,
+                if q.is_finite() { q.max(1e-6) } else { 1e3 },
+            )
         })
         .collect();
     let n = results.len().max(1) as f64;
