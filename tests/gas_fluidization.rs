@@ -13,45 +13,9 @@
 //! The beds and their bookkeeping are `edpm::validate::fluidization`'s,
 //! shared with `edpm validate`.
 
-use std::path::{Path, PathBuf};
-
-use edpm::gas::drag::{umf_ergun, umf_wen_yu};
-use edpm::io::output::CsvColumns;
-use edpm::scenario::Scenario;
 use edpm::validate::fluidization::{
-    Bed, column, fluidized_bed_3d, fluidized_bed_planar, pressure_balance, run_bed, solids_volume,
+    fluidized_bed_3d, fluidized_bed_planar, pressure_balance, umf_sweep,
 };
-
-fn scenario_path() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/fluidized-bed.toml")
-}
-
-fn load(overrides: &[String]) -> Scenario {
-    Scenario::from_file_with_overrides(scenario_path(), overrides).unwrap_or_else(|e| panic!("{e}"))
-}
-
-fn read(path: &Path) -> CsvColumns {
-    CsvColumns::read(path).unwrap_or_else(|e| panic!("{e:#}"))
-}
-
-fn col(csv: &CsvColumns, name: &str) -> Vec<f64> {
-    column(csv, name).unwrap_or_else(|e| panic!("{e:#}"))
-}
-
-/// Runs `s` into a fresh directory; returns it.
-fn run(s: &Scenario, tag: &str) -> PathBuf {
-    let (dir, summary) = run_bed(s, tag).expect("run");
-    let gas = summary.gas.expect("gas totals");
-    eprintln!(
-        "{tag}: {:.1} s process CPU, {} pair collisions, {} collapse reports, {} clamped cells, max mass residual {:.1e}",
-        summary.cpu_seconds,
-        summary.counters.pair_collisions,
-        summary.collapse_reports_total,
-        gas.clamped_cells,
-        gas.max_mass_residual
-    );
-    dir
-}
 
 #[test]
 fn fluidized_bed_pressure_drop_is_bed_weight() {
@@ -90,53 +54,9 @@ fn fluidized_bed_pressure_drop_is_bed_weight() {
     );
 }
 
-/// One defluidization step: from `checkpoint` (a fluidized bed) at
-/// superficial velocity `u` for `t_end` s. Returns (mean Δp over the last
-/// `window` s, relative std of its 0.01 s interval means, mean square
-/// particle speed over the window including the mean motion, particles).
-fn collapse(
-    bed: &Bed,
-    checkpoint: &Path,
-    u: f64,
-    t_end: f64,
-    window: f64,
-) -> (f64, f64, f64, CsvColumns) {
-    let s = load(&[
-        format!("time.t_end={t_end}"),
-        format!("initial.checkpoint={}", checkpoint.display()),
-        "particles.0.count=0".into(),
-        format!("gas.faces.y_lo={{inflow={u}}}"),
-        format!("gas.initial_velocity=[0,{u},0]"),
-    ]);
-    let d = run(&s, &format!("umf-{u}"));
-    let gas = read(&d.join("gas_timeseries.csv"));
-    let series = read(&d.join("timeseries.csv"));
-    let particles = read(&d.join("final_particles.csv"));
-    let t_from = t_end - window;
-    let dp = bed.mean_pressure_drop(&gas, t_from).expect("pressure drop");
-    let in_window = |t: &f64| *t > t_from + 1e-9;
-    let t = col(&gas, "time_s");
-    let series_dp: Vec<f64> = col(&gas, "pressure_drop_mean_Pa")
-        .into_iter()
-        .zip(&t)
-        .filter(|(_, t)| in_window(t))
-        .map(|(p, _)| p - bed.hydrostatic)
-        .collect();
-    let var = series_dp.iter().map(|p| (p - dp).powi(2)).sum::<f64>() / series_dp.len() as f64;
-    let t = col(&series, "time_s");
-    let ke: Vec<f64> = col(&series, "ke_translational_J")
-        .into_iter()
-        .zip(&t)
-        .filter(|(_, t)| in_window(t))
-        .map(|(k, _)| k)
-        .collect();
-    let mass = solids_volume(&particles).expect("volume") * bed.rho_p;
-    let v2 = 2.0 * ke.iter().sum::<f64>() / ke.len() as f64 / mass;
-    let _ = std::fs::remove_dir_all(&d);
-    (dp, var.sqrt() / dp, v2, particles)
-}
-
-/// Reduced defluidization sweep, about 3 minutes in release on two cores:
+/// Reduced defluidization sweep (`edpm::validate::fluidization::umf_sweep`,
+/// the `umf` case of `edpm validate`), about 3 minutes in release on two
+/// cores:
 ///
 /// ```sh
 /// cargo test --release --test gas_fluidization -- --ignored umf --nocapture
@@ -155,90 +75,48 @@ fn collapse(
 #[test]
 #[ignore]
 fn umf_defluidization_matches_ergun() {
-    let fluid = load(&["time.t_end=1.5".to_string()]);
-    let bed = Bed::new(&fluid).expect("bed");
-    let dir = run(&fluid, "umf-fluidize");
-    let checkpoint = dir.join("final_state.bin");
-    let velocities = [0.2, 0.3, 0.45];
-    let window = 0.05;
-    let points: Vec<(f64, f64, f64, CsvColumns)> = std::thread::scope(|scope| {
-        let mut results = Vec::new();
-        for pair in velocities.chunks(2) {
-            let handles: Vec<_> = pair
-                .iter()
-                .map(|&u| {
-                    let (bed, checkpoint) = (&bed, &checkpoint);
-                    scope.spawn(move || {
-                        let mut r = collapse(bed, checkpoint, u, 0.2, window);
-                        if r.1 > 0.005 || r.2 > 1e-4 {
-                            r = collapse(bed, checkpoint, u, 0.4, window);
-                        }
-                        (u, r.0, r.1, r.2, r.3)
-                    })
-                })
-                .collect();
-            for h in handles {
-                let (u, dp, rel_std, v2, particles) = h.join().expect("run thread");
-                let w = bed.weight_per_area(&particles).expect("weight");
-                eprintln!(
-                    "U = {u} m/s: Δp = {dp:.2} Pa = {:.3} W/A (std {:.2} %), mean square speed {v2:.1e} m²/s²",
-                    dp / w,
-                    100.0 * rel_std
-                );
-                // Packed and steady: speeds below 1 cm/s (fluidized: ≳ 1e-3
-                // m²/s²), pressure drop steady to 0.5 %.
-                assert!(
-                    v2 < 1e-4,
-                    "U = {u} m/s: bed not packed (mean square speed {v2:.1e} m²/s²)"
-                );
-                assert!(
-                    rel_std < 0.005,
-                    "U = {u} m/s: pressure drop not steady ({rel_std:.2e})"
-                );
-                assert!(
-                    dp < 0.95 * w,
-                    "U = {u} m/s: Δp {dp:.1} Pa is not on the fixed-bed branch (W/A {w:.1} Pa)"
-                );
-                results.push((u, dp, v2, particles));
-            }
-        }
-        results
-    });
-    let w = bed.weight_per_area(&points[0].3).expect("weight");
-    // Least squares Δp = a U + b U² through the origin (2x2 normal equations).
-    let (mut s22, mut s23, mut s33, mut r2, mut r3) = (0.0, 0.0, 0.0, 0.0, 0.0);
-    for (u, dp, _, _) in &points {
-        s22 += u * u;
-        s23 += u * u * u;
-        s33 += u * u * u * u;
-        r2 += u * dp;
-        r3 += u * u * dp;
+    let fit = umf_sweep().unwrap_or_else(|e| panic!("{e:#}"));
+    for p in &fit.points {
+        let (u, dp, w) = (p.u, p.pressure_drop, p.weight_per_area);
+        eprintln!(
+            "U = {u} m/s: Δp = {dp:.2} Pa = {:.3} W/A (std {:.2} %), mean square speed {:.1e} m²/s²",
+            dp / w,
+            100.0 * p.relative_std,
+            p.mean_square_speed
+        );
+        // Packed and steady: speeds below 1 cm/s (fluidized: ≳ 1e-3
+        // m²/s²), pressure drop steady to 0.5 %.
+        assert!(
+            p.mean_square_speed < 1e-4,
+            "U = {u} m/s: bed not packed (mean square speed {:.1e} m²/s²)",
+            p.mean_square_speed
+        );
+        assert!(
+            p.relative_std < 0.005,
+            "U = {u} m/s: pressure drop not steady ({:.2e})",
+            p.relative_std
+        );
+        assert!(
+            dp < 0.95 * w,
+            "U = {u} m/s: Δp {dp:.1} Pa is not on the fixed-bed branch (W/A {w:.1} Pa)"
+        );
     }
-    let det = s22 * s33 - s23 * s23;
-    let a = (r2 * s33 - r3 * s23) / det;
-    let b = (s22 * r3 - s23 * r2) / det;
-    let umf = 2.0 * w / (a + (a * a + 4.0 * b * w).sqrt());
-    let packed: Vec<(f64, f64)> = points
-        .iter()
-        .map(|p| bed.packed_gas_fraction(&p.3).expect("packed bed"))
-        .collect();
-    let eps_mf = packed.iter().map(|p| p.0).sum::<f64>() / packed.len() as f64;
-    let height = packed.iter().map(|p| p.1).sum::<f64>() / packed.len() as f64;
-    let d = 2.0 * col(&points[0].3, "radius_m")[0];
-    let ergun = umf_ergun(d, bed.rho_p, bed.rho_g, bed.mu, bed.g, eps_mf);
-    let wen_yu = umf_wen_yu(d, bed.rho_p, bed.rho_g, bed.mu, bed.g);
+    let (umf, ergun, wen_yu) = (fit.umf, fit.ergun, fit.wen_yu);
     eprintln!(
-        "fit a = {a:.1} Pa s/m, b = {b:.1} Pa s²/m²; u_mf = {umf:.4} m/s; packed bed {:.2} mm, ε_mf = {eps_mf:.4}; \
+        "fit a = {:.1} Pa s/m, b = {:.1} Pa s²/m²; u_mf = {umf:.4} m/s; packed bed {:.2} mm, ε_mf = {:.4}; \
          Ergun {ergun:.4} m/s ({:+.1} %), Wen–Yu {wen_yu:.4} m/s ({:+.1} %)",
-        height * 1e3,
+        fit.a,
+        fit.b,
+        fit.height * 1e3,
+        fit.eps_mf,
         100.0 * (umf / ergun - 1.0),
         100.0 * (umf / wen_yu - 1.0)
     );
     assert!(
         (umf / ergun - 1.0).abs() < 0.10,
-        "u_mf {umf:.4} m/s vs Ergun {ergun:.4} m/s at ε_mf = {eps_mf:.4}"
+        "u_mf {umf:.4} m/s vs Ergun {ergun:.4} m/s at ε_mf = {:.4}",
+        fit.eps_mf
     );
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]

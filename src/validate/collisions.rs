@@ -24,6 +24,7 @@ pub fn cases() -> Vec<Case> {
             reference: "Hand-derived from Eq. 17 and momentum conservation (seed 001, Eq. 13, 20)",
             error_measure: "velocity error over the approach speed",
             run: |_| hard_normal(),
+            full_only: false,
         },
         Case {
             name: "hard-oblique-sticking",
@@ -31,6 +32,7 @@ pub fn cases() -> Vec<Case> {
             reference: "Definitions of e_n and β₀, Eq. 17 and Eq. 19: v'_n = −e_n v_n, v'_t = −β₀ v_t",
             error_measure: "contact-velocity error over the pre-collision contact speed",
             run: |_| hard_oblique_sticking(),
+            full_only: false,
         },
         Case {
             name: "hard-oblique-sliding",
@@ -38,6 +40,7 @@ pub fn cases() -> Vec<Case> {
             reference: "Hand-derived: J_n = (1 + e_n) m_ab |v_n| (Eq. 20), J_t = μ J_n (Eq. 21), Δω = −5/(2 m R) n × J (Eq. 14)",
             error_measure: "velocity (spin × R) error over the approach speed",
             run: |_| hard_oblique_sliding(),
+            full_only: false,
         },
         Case {
             name: "hard-wall",
@@ -45,6 +48,7 @@ pub fn cases() -> Vec<Case> {
             reference: "Hand-derived, wall as infinite mass (Sec. 3.3): v'_t = 5/7 v_t, ω' = v'_t / R, v'_n = −e_n v_n",
             error_measure: "velocity (spin × R) error over the approach speed",
             run: |_| hard_wall(),
+            full_only: false,
         },
         Case {
             name: "soft-restitution",
@@ -52,6 +56,7 @@ pub fn cases() -> Vec<Case> {
             reference: "Clamped spring–dashpot: e_n = exp(−2 ζ g(ζ)) (src/contact/soft.rs notes; Eq. 27 for the unclamped model)",
             error_measure: "relative error of the restitution, worst over e_n, pair/wall and touch phase",
             run: soft_restitution,
+            full_only: false,
         },
         Case {
             name: "soft-contact-time",
@@ -59,6 +64,7 @@ pub fn cases() -> Vec<Case> {
             reference: "Clamped spring–dashpot: t* = 2 arccos(ζ) / (ω₀ √(1 − ζ²)) (src/contact/soft.rs notes; Eq. 41 unclamped)",
             error_measure: "relative error of the contact time, worst over e_n, pair/wall and touch phase",
             run: soft_contact_time,
+            full_only: false,
         },
     ]
 }

@@ -28,6 +28,7 @@ pub fn cases() -> Vec<Case> {
             reference: "Schiller–Naumann terminal velocity: C_d = 24/Re (1 + 0.15 Re^0.687) (seed 001 Eq. 5), solved for the force balance",
             error_measure: "relative error of the final settling velocity",
             run: settling_light,
+            full_only: false,
         },
         Case {
             name: "settling-buoyant",
@@ -35,6 +36,7 @@ pub fn cases() -> Vec<Case> {
             reference: "Schiller–Naumann terminal velocity with buoyancy (seed 001 Eq. 5)",
             error_measure: "relative error of the final settling velocity",
             run: settling_buoyant,
+            full_only: false,
         },
         Case {
             name: "poiseuille",
@@ -42,6 +44,7 @@ pub fn cases() -> Vec<Case> {
             reference: "u(y) = g y (H − y) / (2 ν)",
             error_measure: "largest |u − u_exact| over the centre-line velocity",
             run: poiseuille_case,
+            full_only: false,
         },
         Case {
             name: "ergun-fixed-bed",
@@ -49,6 +52,7 @@ pub fn cases() -> Vec<Case> {
             reference: "Ergun (1952): ∇p = 150 μ (1 − ε)² U / (ε³ d²) + 1.75 ρ (1 − ε) U² / (ε³ d)",
             error_measure: "relative error of the pressure gradient",
             run: ergun_case,
+            full_only: false,
         },
     ]
 }

@@ -34,6 +34,7 @@ pub fn cases() -> Vec<Case> {
             reference: "Carnahan & Starling (1969): Z = (1 + φ + φ² − φ³)/(1 − φ)³",
             error_measure: "relative error of β P σ³; a state with more than 5 % solid-like particles fails",
             run: eos,
+            full_only: false,
         },
         Case {
             name: "enskog-frequency-3d",
@@ -41,6 +42,7 @@ pub fn cases() -> Vec<Case> {
             reference: "Enskog: ω = 4 n σ² g0 √(π T/m), Carnahan–Starling g0 = (1 − φ/2)/(1 − φ)³ (Chapman & Cowling 1970, ch. 16)",
             error_measure: "relative error of ω",
             run: |mode| enskog_frequency(mode, false),
+            full_only: false,
         },
         Case {
             name: "enskog-frequency-planar",
@@ -48,6 +50,7 @@ pub fn cases() -> Vec<Case> {
             reference: "Enskog for disks: ω = 2 n σ g0 √(π T/m), Henderson (1975) g0 = (1 − 7ν/16)/(1 − ν)²",
             error_measure: "relative error of ω",
             run: |mode| enskog_frequency(mode, true),
+            full_only: false,
         },
         Case {
             name: "haff-3d",
@@ -55,6 +58,7 @@ pub fn cases() -> Vec<Case> {
             reference: "Haff's law per collision T = T0 exp(−(1 − e²) τ/d (1 + a2/4)), a2 of van Noije & Ernst (1998)",
             error_measure: "T/T_Haff − 1 at each τ (mean over seeds)",
             run: |mode| haff(mode, false),
+            full_only: false,
         },
         Case {
             name: "haff-planar",
@@ -62,6 +66,7 @@ pub fn cases() -> Vec<Case> {
             reference: "Haff's law per collision with the first Sonine correction, d = 2 (van Noije & Ernst 1998)",
             error_measure: "T/T_Haff − 1 at each τ (mean over seeds)",
             run: |mode| haff(mode, true),
+            full_only: false,
         },
         Case {
             name: "rough-cooling",
@@ -69,6 +74,7 @@ pub fn cases() -> Vec<Case> {
             reference: "Huthmann & Zippelius (1997); Luding et al. (1998): molecular-chaos ratio of the homogeneous cooling state",
             error_measure: "relative error of the plateau mean of T_rot/T_tr",
             run: rough_cooling,
+            full_only: false,
         },
         Case {
             name: "energy-conservation",
@@ -76,6 +82,7 @@ pub fn cases() -> Vec<Case> {
             reference: "Exact conservation",
             error_measure: "relative energy drift over the run",
             run: energy_conservation,
+            full_only: false,
         },
         Case {
             name: "momentum-and-energy-balance",
@@ -83,6 +90,7 @@ pub fn cases() -> Vec<Case> {
             reference: "Exact: momentum conserved per collision (Eq. 13), ΔE_kin = −Σ dissipated",
             error_measure: "|ΔP| / (N m √T0); (ΔE + dissipated)/E0",
             run: momentum_and_energy_balance,
+            full_only: false,
         },
     ]
 }

@@ -27,6 +27,7 @@ pub fn cases() -> Vec<Case> {
             reference: "Enskog / KTGF p_c = 2 (1 + e) ε² ρ_p g0 θ (seed 000 Table 5), Carnahan–Starling (3D) or Henderson (2D) g0",
             error_measure: "relative error of Σ p_c measured / Σ p_c KTGF",
             run: ktgf_pressure,
+            full_only: false,
         },
         Case {
             name: "ktgf-dissipation",
@@ -34,6 +35,7 @@ pub fn cases() -> Vec<Case> {
             reference: "KTGF γ = 12 (1 − e²) ε² ρ_p g0 θ^{3/2} / (σ √π) and p_c (seed 000 Table 5; disks: Jenkins & Richman 1985)",
             error_measure: "relative error of Σ measured / Σ KTGF",
             run: ktgf_dissipation,
+            full_only: false,
         },
     ]
 }

@@ -153,6 +153,9 @@ pub struct Case {
     pub error_measure: &'static str,
     /// Runs the case.
     pub run: fn(Mode) -> Measurement,
+    /// Too long for `--quick` (minutes of CPU): run by the full catalogue
+    /// only, and listed as left out in a quick report.
+    pub full_only: bool,
 }
 
 /// One row of the report.
@@ -268,10 +271,12 @@ pub fn select(names: &[String]) -> anyhow::Result<Vec<Case>> {
         .collect())
 }
 
-/// Runs `cases` in order, printing one line per case as it finishes.
+/// Runs `cases` in order, printing one line per case as it finishes;
+/// full-only cases are left out in quick mode.
 pub fn run_cases(cases: &[Case], mode: Mode, tolerance_scale: f64) -> Vec<CaseResult> {
     cases
         .iter()
+        .filter(|case| mode == Mode::Full || !case.full_only)
         .map(|case| {
             let start = cpu_time();
             let m = (case.run)(mode);
@@ -288,7 +293,8 @@ pub fn validate_cli(opts: &ValidateOptions) -> anyhow::Result<()> {
     let cases = select(&opts.cases)?;
     if opts.list {
         for c in &cases {
-            println!("{:<27} {}", c.name, c.checks);
+            let tag = if c.full_only { "[full only] " } else { "" };
+            println!("{:<27} {tag}{}", c.name, c.checks);
         }
         return Ok(());
     }
@@ -298,7 +304,15 @@ pub fn validate_cli(opts: &ValidateOptions) -> anyhow::Result<()> {
         opts.tolerance_scale
     );
     let results = run_cases(&cases, opts.mode, opts.tolerance_scale);
-    report::write(&opts.out, opts.mode, &results)?;
+    let left_out: Vec<&str> = cases
+        .iter()
+        .filter(|c| opts.mode == Mode::Quick && c.full_only)
+        .map(|c| c.name)
+        .collect();
+    if !left_out.is_empty() {
+        println!("left out (full catalogue only): {}", left_out.join(", "));
+    }
+    report::write(&opts.out, opts.mode, &results, &left_out)?;
     let failed: Vec<&str> = results
         .iter()
         .filter(|r| !r.pass)
@@ -326,6 +340,7 @@ mod tests {
             reference: "none",
             error_measure: "relative",
             run: |_| Measurement::default(),
+            full_only: false,
         }
     }
 

@@ -19,22 +19,33 @@ struct JsonReport<'a> {
     cases_passed: usize,
     cases_total: usize,
     cpu_seconds: f64,
+    /// Full-only cases a quick run left out.
+    left_out: &'a [&'a str],
     cases: &'a [CaseResult],
 }
 
 /// Writes the report files into `dir` (created if needed).
-pub fn write(dir: &Path, mode: Mode, results: &[CaseResult]) -> anyhow::Result<()> {
+pub fn write(
+    dir: &Path,
+    mode: Mode,
+    results: &[CaseResult],
+    left_out: &[&str],
+) -> anyhow::Result<()> {
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     let json = JsonReport {
         mode,
         cases_passed: results.iter().filter(|r| r.pass).count(),
         cases_total: results.len(),
         cpu_seconds: results.iter().map(|r| r.cpu_seconds).sum(),
+        left_out,
         cases: results,
     };
     let text = serde_json::to_string_pretty(&json).context("serialising the report")?;
     write_atomic(&dir.join("report.json"), text.as_bytes())?;
-    write_atomic(&dir.join("report.md"), markdown(mode, results).as_bytes())?;
+    write_atomic(
+        &dir.join("report.md"),
+        markdown(mode, results, left_out).as_bytes(),
+    )?;
     error_figure(&dir.join("errors.png"), results)?;
     for r in results {
         if let Some(c) = &r.curve {
@@ -68,7 +79,7 @@ pub(super) fn number(v: f64) -> String {
 }
 
 /// The Markdown report: summary table, then each case's parts.
-pub fn markdown(mode: Mode, results: &[CaseResult]) -> String {
+pub fn markdown(mode: Mode, results: &[CaseResult], left_out: &[&str]) -> String {
     let passed = results.iter().filter(|r| r.pass).count();
     let cpu: f64 = results.iter().map(|r| r.cpu_seconds).sum();
     let mut s = String::new();
@@ -100,6 +111,13 @@ pub fn markdown(mode: Mode, results: &[CaseResult]) -> String {
             r.tolerance,
             if r.pass { "yes" } else { "**no**" },
             r.cpu_seconds
+        );
+    }
+    if !left_out.is_empty() {
+        let _ = writeln!(
+            s,
+            "\nLeft out (full catalogue only): {}.",
+            left_out.join(", ")
         );
     }
     let _ = writeln!(s, "\n![|error| / tolerance per case](errors.png)\n");
