@@ -413,7 +413,7 @@ pub struct UmfFit {
     pub wen_yu: f64,
 }
 
-/// Reduced defluidization sweep, about 3 minutes of CPU: the bed of
+/// Reduced defluidization sweep, 3–9 minutes of CPU: the bed of
 /// scenarios/fluidized-bed.toml is fluidized at 1.0 m/s for 1.5 s; from
 /// that state it collapses under 0.2, 0.3 and 0.45 m/s (independent runs,
 /// two at a time), each run 0.2 s (0.4 s if the pressure drop still drifts
@@ -479,7 +479,8 @@ pub fn umf_sweep() -> anyhow::Result<UmfFit> {
     })
 }
 
-/// Full catalogue only (about 3 CPU minutes). Every collapse point must be
+/// Full catalogue only (measured 8.5 CPU minutes on the loaded machine).
+/// Every collapse point must be
 /// packed and steady (speeds below 1 cm/s, Δp steady to 0.5 %, on the
 /// fixed-bed branch below 0.95 W/A), else the case fails. u_mf within
 /// 10 % of Ergun's at the measured ε_mf (tests/gas_fluidization.rs; the
