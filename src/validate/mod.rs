@@ -351,14 +351,16 @@ mod tests {
             Part::relative("b", 1.05, 1.0, 0.1),
             Part::relative("c", 0.98, 1.0, 0.01),
         ]);
+        // c is the worst by |error| / tolerance (2), although b has the
+        // largest |error| (0.05, half its tolerance).
         let r = CaseResult::new(&case(), m.clone(), 0.0, 1.0);
         assert!(!r.pass);
-        assert_eq!(r.parts[2].label, "c");
+        assert!((r.measured - 0.98).abs() < 1e-12, "{}", r.measured);
         assert!((r.error + 0.02).abs() < 1e-12 && r.tolerance == 0.01);
-        // Wider tolerances pass; part b is then the worst (0.5 of its own).
+        // Three times wider tolerances pass; c is still the worst (2/3).
         let r = CaseResult::new(&case(), m, 0.0, 3.0);
         assert!(r.pass);
-        assert!((r.measured - 1.05).abs() < 1e-12);
+        assert!((r.measured - 0.98).abs() < 1e-12 && (r.tolerance - 0.03).abs() < 1e-15);
     }
 
     #[test]
