@@ -15,7 +15,8 @@
 //! 5. the input: [`scenario`] files and the [`initial`] state;
 //! 6. a run: the flow-step loop and its recorders ([`run`]); `edpm bench`
 //!    ([`bench`]); `edpm sweep` over parameter values ([`sweep`]);
-//! 7. after a run: [`analysis`], [`plot`] and event-log [`replay`].
+//! 7. after a run: [`analysis`], [`plot`] and event-log [`replay`]; the
+//!    validation catalogue of `edpm validate` ([`validate`]).
 //!
 //! [`random`] and [`timing`] are small helpers for every stage. The
 //! [`prelude`] gathers what a library user needs to set up and run a
@@ -44,3 +45,4 @@ pub mod run;
 pub mod scenario;
 pub mod sweep;
 pub mod timing;
+pub mod validate;

@@ -182,6 +182,25 @@ enum Command {
         #[arg(long)]
         title: Option<String>,
     },
+    /// Run the validation catalogue (docs/validation.md): each case
+    /// against its reference; writes report.md, report.json and figures,
+    /// and fails if a case fails.
+    Validate {
+        /// Cases to run, by name (default: all; --list shows them).
+        cases: Vec<String>,
+        /// Reduced version of every case (a few minutes of CPU).
+        #[arg(long)]
+        quick: bool,
+        /// Report directory.
+        #[arg(long, default_value = "out/validate")]
+        out: PathBuf,
+        /// List the cases and exit.
+        #[arg(long)]
+        list: bool,
+        /// Multiply every tolerance (for testing the exit status).
+        #[arg(long, default_value_t = 1.0, hide = true)]
+        tolerance_scale: f64,
+    },
     /// Elastic smooth spheres in a periodic cube; prints one JSON line.
     Bench {
         /// Particle count (rounded to 4 k³ for the FCC start).
@@ -343,6 +362,23 @@ fn main() -> ExitCode {
             },
             compare_out.as_deref(),
         ),
+        Command::Validate {
+            cases,
+            quick,
+            out,
+            list,
+            tolerance_scale,
+        } => edpm::validate::validate_cli(&edpm::validate::ValidateOptions {
+            cases,
+            mode: if quick {
+                edpm::validate::Mode::Quick
+            } else {
+                edpm::validate::Mode::Full
+            },
+            out,
+            list,
+            tolerance_scale,
+        }),
         Command::Figures { dir, title } => edpm::analysis::figures_cli(&dir, title.as_deref()),
         Command::Bench {
             n,

@@ -42,6 +42,9 @@ const STAGES: &[(&str, u32)] = &[
     // After a run.
     ("analysis", 7),
     ("replay", 7),
+    // The validation catalogue: runs the engine, the gas and the scenario
+    // runner, and goes through the analysis's KTGF test.
+    ("validate", 7),
     // The library user's view.
     ("prelude", 8),
 ];

@@ -1,89 +1,21 @@
 //! The gas phase against references: Poiseuille flow (analytical),
 //! single-particle settling (Schiller–Naumann), a fixed bed (Ergun), and
 //! the exact interphase momentum balance, the pressure force on a lone
-//! particle, and buoyant settling two-way coupled.
+//! particle, and buoyant settling two-way coupled. The reference cases
+//! are `edpm::validate::gas_flow`'s, shared with `edpm validate`.
 
 use edpm::engine::ParticleView;
+use edpm::gas::PressureSolverKind;
 use edpm::gas::coupling::Coupling;
-use edpm::gas::drag::{ergun_pressure_gradient, terminal_velocity};
+use edpm::gas::drag::terminal_velocity;
 use edpm::gas::solver::GasPhase;
-use edpm::gas::{
-    DragLaw, GasConfig, GasFace, GasModel, GridGeometry, PlanarPorosity, PorosityMapping,
-    PressureSolverKind,
-};
-use edpm::run::run_scenario;
+use edpm::gas::{DragLaw, GasFace, GasModel, GridGeometry, PlanarPorosity, PorosityMapping};
 use edpm::scenario::Scenario;
+use edpm::validate::gas_flow::{
+    buoyant_terminal_velocity, fixed_bed, fixed_particle as particle, gas_config as config,
+    poiseuille, settle_buoyant, settle_in_air,
+};
 use glam::DVec3;
-
-fn config(cells: [usize; 3], faces: [[GasFace; 2]; 3], model: GasModel, mu: f64) -> GasConfig {
-    GasConfig {
-        model,
-        viscosity: mu,
-        pressure: 101_325.0,
-        cells,
-        drag: DragLaw::ErgunWenYu,
-        porosity: PorosityMapping::VolumeWeighting,
-        planar_porosity: PlanarPorosity::Hoomans,
-        faces,
-        jets: Vec::new(),
-        initial_velocity: DVec3::ZERO,
-        pressure_solver: PressureSolverKind::Auto,
-        linear_tolerance: 1e-12,
-        mass_tolerance: 1e-11,
-        max_outer_iterations: 20,
-        two_way: true,
-    }
-}
-
-/// Steady plane Poiseuille flow driven by a body force g along x between
-/// no-slip plates at y = 0 and y = H: u(y) = g y (H − y) / (2 ν).
-fn poiseuille(cells: [usize; 3], planar: bool, solver: PressureSolverKind) -> f64 {
-    let height = 0.01;
-    let (rho, mu, g) = (1.0, 1e-3, 0.4);
-    let z_periodic = !planar;
-    let faces = [
-        [GasFace::Periodic; 2],
-        [GasFace::NoSlip; 2],
-        if planar {
-            [GasFace::FreeSlip; 2]
-        } else {
-            [GasFace::Periodic; 2]
-        },
-    ];
-    let mut cfg = config(cells, faces, GasModel::Incompressible { density: rho }, mu);
-    cfg.pressure_solver = solver;
-    let grid = GridGeometry::new(
-        DVec3::ZERO,
-        DVec3::new(0.004, height, 0.003),
-        cells,
-        [true, false, z_periodic],
-        planar,
-    );
-    let mut gas = GasPhase::new(grid, cfg, DVec3::new(g, 0.0, 0.0));
-    let h = height / cells[1] as f64;
-    // Explicit viscous stability: dt < h² ρ / (4 μ); run 8 diffusion times.
-    let dt = 0.2 * h * h * rho / mu;
-    let t_end = 8.0 * height * height * rho / mu / std::f64::consts::PI.powi(2);
-    let steps = (t_end / dt).ceil() as usize;
-    for _ in 0..steps {
-        let eps = gas.gas_fraction.clone();
-        gas.set_gas_fraction(&eps);
-        gas.step(dt).expect("gas step");
-    }
-    let u_max = g * height * height / (8.0 * mu / rho);
-    let mut worst: f64 = 0.0;
-    for j in 0..cells[1] {
-        let y = (j as f64 + 0.5) * h;
-        let exact = g * y * (height - y) / (2.0 * mu / rho);
-        for i in 0..cells[0] {
-            for k in 0..cells[2] {
-                let u = gas.velocity[0][gas.grid.face_index(0, [i, j, k])];
-                worst = worst.max((u - exact).abs() / u_max);
-            }
-        }
-    }
-    worst
-}
 
 #[test]
 fn poiseuille_profile_within_one_percent() {
@@ -103,74 +35,6 @@ fn poiseuille_profile_within_one_percent() {
     );
 }
 
-fn particle(pos: DVec3, d: f64, rho_p: f64) -> ParticleView {
-    let r = 0.5 * d;
-    ParticleView {
-        id: 0,
-        pos,
-        vel: DVec3::ZERO,
-        omega: DVec3::ZERO,
-        radius: r,
-        mass: rho_p * 4.0 / 3.0 * std::f64::consts::PI * r.powi(3),
-        material: 0,
-    }
-}
-
-/// A fixed bed of a simple cubic lattice (spacing a, diameter d) in a
-/// column with inflow at the bottom and an outlet at the top; particles do
-/// not move. Returns (measured ∇p, Ergun ∇p) in Pa/m.
-fn fixed_bed(u_superficial: f64) -> (f64, f64) {
-    let (a, d) = (1e-3, 0.98e-3);
-    let (nx, ny) = (4, 24);
-    // Two lattice spacings per cell: every cell holds exactly 8 particles.
-    let cells = [nx / 2, ny / 2, nx / 2];
-    let faces = [
-        [GasFace::Periodic; 2],
-        [
-            GasFace::Inflow {
-                velocity: u_superficial,
-            },
-            GasFace::Outlet,
-        ],
-        [GasFace::Periodic; 2],
-    ];
-    let mu = 1.8e-5;
-    let model = GasModel::Incompressible { density: 1.2 };
-    let mut cfg = config(cells, faces, model, mu);
-    cfg.initial_velocity = DVec3::new(0.0, u_superficial, 0.0);
-    let grid = GridGeometry::new(
-        DVec3::ZERO,
-        DVec3::new(nx as f64 * a, ny as f64 * a, nx as f64 * a),
-        cells,
-        [true, false, true],
-        false,
-    );
-    let mut gas = GasPhase::new(grid, cfg, DVec3::ZERO);
-    let mut particles = Vec::new();
-    for i in 0..nx {
-        for j in 0..ny {
-            for k in 0..nx {
-                let pos = (DVec3::new(i as f64, j as f64, k as f64) + 0.5) * a;
-                particles.push(Some(particle(pos, d, 2500.0)));
-            }
-        }
-    }
-    let mut coupling = Coupling::default();
-    let dt = 1e-4;
-    for _ in 0..3000 {
-        coupling.prepare(&mut gas, particles.iter().copied(), dt);
-        gas.step(dt).expect("gas step");
-    }
-    let eps_g = 1.0 - std::f64::consts::PI * d.powi(3) / (6.0 * a.powi(3));
-    assert!((gas.gas_fraction[5] - eps_g).abs() < 1e-12);
-    // Pressure gradient between cell layers 3 and 8 (away from the ends).
-    let h = 2.0 * a;
-    let p = |j: usize| gas.pressure[gas.grid.cell_index([0, j, 0])];
-    let measured = (p(3) - p(8)) / (5.0 * h);
-    let ergun = ergun_pressure_gradient(u_superficial, eps_g, d, 1.2, mu);
-    (measured, ergun)
-}
-
 #[test]
 fn fixed_bed_pressure_drop_follows_ergun() {
     // Uniform gas fraction, so the steady gas momentum balance reduces to
@@ -179,7 +43,8 @@ fn fixed_bed_pressure_drop_follows_ergun() {
     // convection of a uniform flow (zero). 3 % is the issue's tolerance;
     // the solver should be far closer.
     for u in [0.05, 0.2, 0.5, 1.0, 2.0] {
-        let (measured, ergun) = fixed_bed(u);
+        let (measured, ergun, cell_gas_fraction, eps_g) = fixed_bed(u);
+        assert!((cell_gas_fraction - eps_g).abs() < 1e-12);
         let err = (measured - ergun).abs() / ergun;
         eprintln!("fixed bed U = {u} m/s: {measured:.2} Pa/m vs Ergun {ergun:.2} Pa/m");
         assert!(
@@ -405,73 +270,10 @@ fn lone_particle_feels_minus_volume_times_pressure_gradient_anywhere() {
     }
 }
 
-/// Settling velocity (m/s) of one sphere in a scenario run two-way coupled;
-/// `extra` is appended to the scenario text.
+/// Settling velocity (m/s) of the buoyant sphere of
+/// `edpm validate settling-buoyant`, two-way coupled unless `extra` says.
 fn settle(domain_hi: &str, planar: bool, cells: &str, extra: &str) -> f64 {
-    // 3D: start next to the periodic seam at z = 0.
-    let region_z = if planar { 0.002 } else { 0.006 };
-    let boundaries = if planar {
-        "x = \"periodic\""
-    } else {
-        "x = \"periodic\"\nz = \"periodic\""
-    };
-    let text = format!(
-        r#"
-seed = 1
-[domain]
-lo = [0.0, 0.0, 0.0]
-hi = {domain_hi}
-planar = {planar}
-gravity = [0.0, -9.81, 0.0]
-[boundaries]
-{boundaries}
-wall_material = "wall"
-[[materials]]
-name = "p"
-density = 1500.0
-[[materials]]
-name = "wall"
-[collisions]
-default = {{ e_n = 1.0, beta_0 = 0.0, mu = 0.0 }}
-[[particles]]
-name = "p"
-material = "p"
-count = 1
-diameter = 2e-3
-placement = "random"
-region = {{ lo = [0.021, 0.5, 0.0], hi = [0.039, 0.52, {region_z}] }}
-[time]
-t_end = 0.8
-dt_flow = 1e-3
-[output]
-sample_interval = 0.1
-[gas]
-model = "incompressible"
-density = 1000.0
-viscosity = 1e-3
-cells = {cells}
-{extra}
-[gas.faces]
-y_hi = "outlet"
-"#
-    );
-    let s = Scenario::from_str_named(&text, "buoyant.toml", &[]).unwrap_or_else(|e| panic!("{e}"));
-    let dir = std::env::temp_dir().join(format!(
-        "edpm-buoyant-{}-{}",
-        std::process::id(),
-        cells.replace([',', '[', ']', ' '], "_")
-    ));
-    run_scenario(&s, &dir, false).expect("run");
-    let csv = std::fs::read_to_string(dir.join("final_particles.csv")).expect("particles");
-    let _ = std::fs::remove_dir_all(&dir);
-    let row: Vec<f64> = csv
-        .lines()
-        .nth(1)
-        .expect("one particle")
-        .split(',')
-        .map(|x| x.parse().unwrap())
-        .collect();
-    -row[7]
+    settle_buoyant(domain_hi, planar, cells, extra).unwrap_or_else(|e| panic!("{e:#}"))
 }
 
 #[test]
@@ -486,7 +288,7 @@ fn buoyant_sphere_settles_at_schiller_naumann_two_way() {
     // the sphere drags along in its cells (largest in planar mode, whose
     // cells hold 190 particle volumes) and the hindered-settling factor
     // of Wen–Yu at the cell's gas fraction (slab: 0.3 %).
-    let vt = terminal_velocity(2e-3, 1500.0, 1000.0, 1e-3, 9.81);
+    let vt = buoyant_terminal_velocity();
     let cases = [
         ("3D", settle("[0.06, 0.6, 0.06]", false, "[3, 30, 3]", "")),
         (
@@ -520,61 +322,15 @@ fn single_particle_settles_at_schiller_naumann_terminal_velocity() {
     // A 100 µm glass sphere falls through air in a closed column (outlet at
     // the top); cells are 1e4 particle volumes, so the gas fraction stays
     // 1 − 5e-7 and the gas barely moves. Relaxation time v_t/g ≈ 0.05 s, so
-    // after 0.4 s the velocity is within e^{-8} of terminal.
-    let text = r#"
-seed = 1
-[domain]
-lo = [0.0, 0.0, 0.0]
-hi = [0.01, 0.3, 0.01]
-gravity = [0.0, -9.81, 0.0]
-[boundaries]
-wall_material = "wall"
-[[materials]]
-name = "glass"
-density = 2500.0
-[[materials]]
-name = "wall"
-[collisions]
-default = { e_n = 1.0, beta_0 = 0.0, mu = 0.0 }
-[[particles]]
-name = "p"
-material = "glass"
-count = 1
-diameter = 100e-6
-placement = "random"
-region = { lo = [0.004, 0.27, 0.004], hi = [0.006, 0.28, 0.006] }
-[time]
-t_end = 0.4
-dt_flow = 1e-4
-[output]
-sample_interval = 0.1
-[gas]
-cells = [1, 30, 1]
-[gas.faces]
-y_hi = "outlet"
-"#;
-    let s = Scenario::from_str_named(text, "settling.toml", &[]).unwrap_or_else(|e| panic!("{e}"));
-    let dir = std::env::temp_dir().join(format!("edpm-settling-{}", std::process::id()));
-    run_scenario(&s, &dir, false).expect("run");
-    let csv = std::fs::read_to_string(dir.join("final_particles.csv")).expect("particles");
-    let row: Vec<f64> = csv
-        .lines()
-        .nth(1)
-        .expect("one particle")
-        .split(',')
-        .map(|x| x.parse().unwrap())
-        .collect();
-    let v = -row[7];
-    let g = s.gas.as_ref().unwrap();
-    let rho_g = g.model.density(g.pressure);
-    let vt = terminal_velocity(100e-6, 2500.0, rho_g, g.viscosity, 9.81);
+    // after 0.4 s the velocity is within e^{-8} of terminal
+    // (`edpm validate settling-light`, two-way part).
+    let (v, vt) = settle_in_air("two-way").unwrap_or_else(|e| panic!("{e:#}"));
     let err = (v - vt).abs() / vt;
     eprintln!("settling: {v:.6} m/s vs Schiller–Naumann {vt:.6} m/s");
     assert!(
         err < 0.01,
         "settling {v:.5} m/s vs Schiller–Naumann {vt:.5} m/s ({err:.2e})"
     );
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// Smallest surface gap between any two particles over their mean diameter
@@ -867,7 +623,7 @@ fn pressure_solve_near_round_off_does_not_stop_a_run() {
     // t ≈ 0.15 s. An inexact linear correction is still a Newton step;
     // the mass residual decides. The run must finish with the same
     // settling velocity as at the default tolerance (2 % as above).
-    let vt = terminal_velocity(2e-3, 1500.0, 1000.0, 1e-3, 9.81);
+    let vt = buoyant_terminal_velocity();
     let v = settle(
         "[0.06, 0.6, 0.002]",
         true,

@@ -17,6 +17,7 @@ mod diagnose;
 mod feeder;
 pub mod outdir;
 pub mod recorders;
+pub mod skipped;
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -127,6 +128,9 @@ pub struct Summary {
     pub soft: Option<SoftConfig>,
     /// What the soft steps did (null for hard spheres).
     pub soft_stats: Option<SoftStats>,
+    /// What the run skipped because the scene does not need it
+    /// ([`skipped::skipped_parts`]).
+    pub skipped: Vec<skipped::Skipped>,
     pub particles_initial: usize,
     pub particles_final: usize,
     pub counters: Counters,
@@ -501,6 +505,12 @@ fn simulate<Q: EventQueue>(
         max_overlap_rel: engine.soft_stats.max_overlap_rel,
         soft: engine.soft_config(),
         soft_stats: engine.soft_config().map(|_| engine.soft_stats),
+        skipped: skipped::skipped_parts(&skipped::RunShape {
+            domain: engine.domain(),
+            rotation_tracked: engine.is_rough(),
+            gas: run.gas.is_some(),
+            recording: s.output.snapshot_interval.is_some() || opts.log.is_some(),
+        }),
         particles_initial,
         particles_final: engine.len(),
         counters: engine.counters,
