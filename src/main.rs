@@ -182,6 +182,19 @@ enum Command {
         #[arg(long)]
         title: Option<String>,
     },
+    /// Fit the minimum fluidization velocity to an `edpm sweep` of the
+    /// inflow velocity (results/fluidization/README.md) and compare it
+    /// with Ergun and Wen–Yu; prints a Markdown report.
+    Umf {
+        /// The sweep's out directory (sweep.csv and one directory per point).
+        sweep: PathBuf,
+        /// The swept scenario (its gas, box and particle material).
+        #[arg(long, default_value = "scenarios/fluidized-bed.toml")]
+        scenario: PathBuf,
+        /// Also write the report to this file.
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
     /// Run the validation catalogue (docs/validation.md): each case
     /// against its reference; writes report.md, report.json and figures,
     /// and fails if a case fails.
@@ -379,6 +392,11 @@ fn main() -> ExitCode {
             list,
             tolerance_scale,
         }),
+        Command::Umf {
+            sweep,
+            scenario,
+            out,
+        } => edpm::analysis::fluidization::umf_cli(&sweep, &scenario, out.as_deref()),
         Command::Figures { dir, title } => edpm::analysis::figures_cli(&dir, title.as_deref()),
         Command::Bench {
             n,

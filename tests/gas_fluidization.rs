@@ -8,7 +8,7 @@
 //! - `umf_defluidization_matches_ergun` (ignored, about 3 min): a reduced
 //!   defluidization sweep; u_mf within 10 % of Ergun's estimate at the bed's
 //!   measured packed gas fraction. The full sweep is `edpm sweep` with
-//!   `tools/umf_fit.py` (results/fluidization/README.md).
+//!   `edpm umf` (results/fluidization/README.md).
 //!
 //! The beds and their bookkeeping are `edpm::validate::fluidization`'s,
 //! shared with `edpm validate`.
@@ -71,7 +71,7 @@ fn fluidized_bed_pressure_drop_is_bed_weight() {
 /// `umf_ergun` at the packed gas fraction measured from the bed height
 /// (mean of the three runs). Wen–Yu is printed for information: it implies
 /// ε_mf ≈ 0.39, while these low-friction hard spheres pack to ≈ 0.38. The
-/// full sweep is `edpm sweep` with `tools/umf_fit.py` (results/fluidization/README.md).
+/// full sweep is `edpm sweep` with `edpm umf` (results/fluidization/README.md).
 #[test]
 #[ignore]
 fn umf_defluidization_matches_ergun() {
@@ -81,7 +81,7 @@ fn umf_defluidization_matches_ergun() {
         eprintln!(
             "U = {u} m/s: Δp = {dp:.2} Pa = {:.3} W/A (std {:.2} %), mean square speed {:.1e} m²/s²",
             dp / w,
-            100.0 * p.relative_std,
+            100.0 * p.pressure_drop_std / dp,
             p.mean_square_speed
         );
         // Packed and steady: speeds below 1 cm/s (fluidized: ≳ 1e-3
@@ -92,9 +92,9 @@ fn umf_defluidization_matches_ergun() {
             p.mean_square_speed
         );
         assert!(
-            p.relative_std < 0.005,
+            p.pressure_drop_std < 0.005 * dp,
             "U = {u} m/s: pressure drop not steady ({:.2e})",
-            p.relative_std
+            p.pressure_drop_std / dp
         );
         assert!(
             dp < 0.95 * w,

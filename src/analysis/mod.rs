@@ -89,6 +89,7 @@ pub mod driver;
 pub mod energy;
 pub mod figure_spec;
 mod figures;
+pub mod fluidization;
 pub mod grid;
 pub mod ktgf;
 pub mod profiles;

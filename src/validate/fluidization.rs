@@ -2,18 +2,17 @@
 //! pressure drop equals the buoyant bed weight per area, on
 //! `scenarios/fluidized-bed.toml` (1350 glass spheres of 1 mm in air,
 //! 9 mm × 9 mm periodic cross-section) and on a planar bed of 400 spheres.
-//! The bookkeeping ([`Bed`]) is shared with tests/gas_fluidization.rs,
-//! which also fits u_mf against Ergun's equation (an ignored test).
+//! The bookkeeping ([`Bed`]) and the u_mf fit ([`fit_umf`]) are
+//! `analysis::fluidization`'s, shared with `edpm umf` and
+//! tests/gas_fluidization.rs.
 
 use std::path::{Path, PathBuf};
 
-use anyhow::Context;
-use glam::DVec3;
-
 use super::{Case, Measurement, Mode, Part};
-use crate::gas::GridGeometry;
-use crate::gas::drag::{umf_ergun, umf_wen_yu};
-use crate::gas::mapping::solids_fraction;
+pub use crate::analysis::fluidization::{
+    Bed, FIXED_BED_MEAN_SQUARE_SPEED, UmfFit, UmfPoint, column, fit_umf, sauter_diameter,
+    solids_volume,
+};
 use crate::io::output::CsvColumns;
 use crate::run::{Summary, run_scenario};
 use crate::scenario::Scenario;
@@ -45,127 +44,6 @@ pub fn cases() -> Vec<Case> {
             full_only: true,
         },
     ]
-}
-
-/// A column of `csv` by name.
-pub fn column(csv: &CsvColumns, name: &str) -> anyhow::Result<Vec<f64>> {
-    let k = csv
-        .column(name)
-        .ok_or_else(|| anyhow::anyhow!("no column {name}"))?;
-    Ok(csv.rows.iter().map(|r| r[k]).collect())
-}
-
-/// Total particle volume (m³) in `final_particles.csv`.
-pub fn solids_volume(particles: &CsvColumns) -> anyhow::Result<f64> {
-    Ok(column(particles, "radius_m")?
-        .iter()
-        .map(|r| 4.0 / 3.0 * std::f64::consts::PI * r.powi(3))
-        .sum())
-}
-
-/// Numbers of the bed and the gas that the checks need.
-pub struct Bed {
-    /// Cross-section (m²), x extent times z extent.
-    pub area: f64,
-    pub rho_g: f64,
-    pub rho_p: f64,
-    pub mu: f64,
-    pub g: f64,
-    /// Gas hydrostatic head between the centre of the bottom cell layer and
-    /// the outlet face, ρ_g g (H − h_y/2) (Pa).
-    pub hydrostatic: f64,
-    pub grid: GridGeometry,
-}
-
-impl Bed {
-    pub fn new(s: &Scenario) -> anyhow::Result<Bed> {
-        let gas = s.gas.as_ref().context("the bed needs [gas]")?;
-        let ext = s.domain.hi - s.domain.lo;
-        let g = s.domain.gravity.length();
-        let rho_g = gas.model.density(gas.pressure);
-        let h_y = ext.y / gas.cells[1] as f64;
-        let periodic = std::array::from_fn(|a| s.boundaries.is_periodic(a));
-        Ok(Bed {
-            area: ext.x * ext.z,
-            rho_g,
-            rho_p: s.materials[0]
-                .density
-                .context("the first material must be the particles'")?,
-            mu: gas.viscosity,
-            g,
-            hydrostatic: rho_g * g * (ext.y - 0.5 * h_y),
-            grid: GridGeometry::new(s.domain.lo, s.domain.hi, gas.cells, periodic, false),
-        })
-    }
-
-    /// Buoyant bed weight per area Σ m_p g (1 − ρ_g/ρ_p) / A (Pa) of the
-    /// particles in `final_particles.csv`.
-    pub fn weight_per_area(&self, particles: &CsvColumns) -> anyhow::Result<f64> {
-        Ok(solids_volume(particles)? * (self.rho_p - self.rho_g) * self.g / self.area)
-    }
-
-    /// Time-averaged pressure drop (Pa) over the sample intervals ending
-    /// after `t_from`, gas hydrostatic head removed.
-    pub fn mean_pressure_drop(&self, gas: &CsvColumns, t_from: f64) -> anyhow::Result<f64> {
-        let t = column(gas, "time_s")?;
-        let dp = column(gas, "pressure_drop_mean_Pa")?;
-        let window: Vec<f64> = t
-            .iter()
-            .zip(&dp)
-            .filter(|(t, _)| **t > t_from + 1e-9)
-            .map(|(_, p)| *p)
-            .collect();
-        anyhow::ensure!(!window.is_empty(), "no samples after {t_from} s");
-        anyhow::ensure!(
-            window.iter().all(|p| p.is_finite()),
-            "non-finite pressure drop"
-        );
-        Ok(window.iter().sum::<f64>() / window.len() as f64 - self.hydrostatic)
-    }
-
-    /// Gas fraction of a packed bed from its height: the laterally averaged
-    /// solids fraction on the solver's grid (volume weighting) falls to half
-    /// its bulk value at the surface H, and ε = 1 − V_s / (A H). Returns
-    /// (ε, H).
-    pub fn packed_gas_fraction(&self, particles: &CsvColumns) -> anyhow::Result<(f64, f64)> {
-        let (x, y, z, r) = (
-            column(particles, "x_m")?,
-            column(particles, "y_m")?,
-            column(particles, "z_m")?,
-            column(particles, "radius_m")?,
-        );
-        let solids = solids_fraction(
-            &self.grid,
-            (0..r.len()).map(|i| (DVec3::new(x[i], y[i], z[i]), r[i])),
-            crate::gas::PorosityMapping::VolumeWeighting,
-            crate::gas::PlanarPorosity::Hoomans,
-        );
-        let n = self.grid.n;
-        let layer = n[0] * n[2];
-        let mut profile = vec![0.0; n[1]];
-        for (c, s) in solids.iter().enumerate() {
-            profile[self.grid.cell_coords(c)[1]] += s / layer as f64;
-        }
-        let peak = profile.iter().copied().fold(0.0, f64::max);
-        let mut dense: Vec<f64> = profile
-            .iter()
-            .copied()
-            .filter(|&s| s > 0.5 * peak)
-            .collect();
-        dense.sort_by(f64::total_cmp);
-        let bulk = dense[dense.len() / 2];
-        let k = (0..n[1])
-            .rev()
-            .find(|&k| profile[k] > 0.5 * bulk)
-            .context("no bed in the profile")?;
-        let h = self.grid.h.y;
-        let height =
-            (k as f64 + 0.5) * h + (profile[k] - 0.5 * bulk) / (profile[k] - profile[k + 1]) * h;
-        Ok((
-            1.0 - solids_volume(particles)? / (self.area * height),
-            height,
-        ))
-    }
 }
 
 /// Runs `s` into a fresh scratch directory named after `tag`; returns the
@@ -321,24 +199,6 @@ fn fluidized(mode: Mode, planar: bool) -> Measurement {
     Measurement::new(vec![part])
 }
 
-/// One defluidization step of [`umf_sweep`].
-#[derive(Clone, Debug, PartialEq)]
-pub struct CollapsePoint {
-    /// Superficial velocity (m/s).
-    pub u: f64,
-    /// Mean pressure drop over the window, hydrostatic head removed (Pa).
-    pub pressure_drop: f64,
-    /// Relative standard deviation of its 0.01 s interval means.
-    pub relative_std: f64,
-    /// Mean square particle speed over the window, mean motion included
-    /// (m²/s²).
-    pub mean_square_speed: f64,
-    /// Buoyant bed weight per area (Pa).
-    pub weight_per_area: f64,
-    /// Packed-bed gas fraction and height (m) from [`Bed::packed_gas_fraction`].
-    pub packed: (f64, f64),
-}
-
 /// One defluidization step: scenarios/fluidized-bed.toml from `checkpoint`
 /// (a fluidized bed) at superficial velocity `u` for `t_end` s, with the
 /// pressure drop and the particle speeds averaged over the last `window` s.
@@ -348,7 +208,7 @@ pub fn collapse(
     u: f64,
     t_end: f64,
     window: f64,
-) -> anyhow::Result<CollapsePoint> {
+) -> anyhow::Result<UmfPoint> {
     let s = fluidized_bed_3d(&[
         format!("time.t_end={t_end}"),
         format!("initial.checkpoint={}", checkpoint.display()),
@@ -356,8 +216,8 @@ pub fn collapse(
         format!("gas.faces.y_lo={{inflow={u}}}"),
         format!("gas.initial_velocity=[0,{u},0]"),
     ])?;
-    let (dir, _) = run_bed(&s, &format!("umf-{u}-{t_end}"))?;
-    let read = |d: &Path| -> anyhow::Result<CollapsePoint> {
+    let (dir, summary) = run_bed(&s, &format!("umf-{u}-{t_end}"))?;
+    let read = |d: &Path| -> anyhow::Result<UmfPoint> {
         let gas = CsvColumns::read(&d.join("gas_timeseries.csv"))?;
         let series = CsvColumns::read(&d.join("timeseries.csv"))?;
         let particles = CsvColumns::read(&d.join("final_particles.csv"))?;
@@ -381,13 +241,14 @@ pub fn collapse(
             / series_dp.len() as f64;
         let ke = windowed(&series, "ke_translational_J")?;
         let mass = solids_volume(&particles)? * bed.rho_p;
-        Ok(CollapsePoint {
+        Ok(UmfPoint {
             u,
             pressure_drop: dp,
-            relative_std: var.sqrt() / dp,
+            pressure_drop_std: var.sqrt(),
             mean_square_speed: 2.0 * ke.iter().sum::<f64>() / ke.len() as f64 / mass,
             weight_per_area: bed.weight_per_area(&particles)?,
             packed: bed.packed_gas_fraction(&particles)?,
+            cpu_seconds: summary.cpu_seconds,
         })
     };
     let result = read(&dir);
@@ -395,48 +256,35 @@ pub fn collapse(
     result
 }
 
-/// The minimum fluidization velocity from a reduced defluidization sweep,
-/// with the references at the measured packing.
-#[derive(Clone, Debug, PartialEq)]
-pub struct UmfFit {
-    pub points: Vec<CollapsePoint>,
-    /// Fit Δp = a U + b U² through the fixed-bed points (Pa s/m, Pa s²/m²).
-    pub a: f64,
-    pub b: f64,
-    /// Where the fit reaches the bed weight per area (m/s).
-    pub umf: f64,
-    /// Packed gas fraction and bed height (m), mean over the points.
-    pub eps_mf: f64,
-    pub height: f64,
-    /// Ergun's u_mf at `eps_mf` and Wen–Yu's (m/s).
-    pub ergun: f64,
-    pub wen_yu: f64,
-}
+/// Relative standard deviation of a point's pressure drop below which it
+/// counts as steady.
+pub const STEADY_RELATIVE_STD: f64 = 0.005;
 
 /// Reduced defluidization sweep, 3–9 minutes of CPU: the bed of
 /// scenarios/fluidized-bed.toml is fluidized at 1.0 m/s for 1.5 s; from
 /// that state it collapses under 0.2, 0.3 and 0.45 m/s (independent runs,
 /// two at a time), each run 0.2 s (0.4 s if the pressure drop still drifts
 /// or the bed still moves) with the pressure drop averaged over the last
-/// 0.05 s, after the bed is packed. Ergun's form Δp = a U + b U² fitted to
-/// the three points reaches the bed weight per area at u_mf, compared with
-/// `umf_ergun` at the packed gas fraction measured from the bed height
-/// (mean of the three runs) and with Wen–Yu. The full sweep is `edpm
-/// sweep` with `tools/umf_fit.py` (results/fluidization/README.md).
+/// 0.05 s, after the bed is packed. [`fit_umf`] fits Ergun's form to the
+/// points, as `edpm umf` does for a full `edpm sweep`
+/// (results/fluidization/README.md).
 pub fn umf_sweep() -> anyhow::Result<UmfFit> {
     let fluid = fluidized_bed_3d(&["time.t_end=1.5".to_string()])?;
     let bed = Bed::new(&fluid)?;
     let (dir, _) = run_bed(&fluid, "umf-fluidize")?;
     let checkpoint = dir.join("final_state.bin");
+    let diameter = sauter_diameter(&CsvColumns::read(&dir.join("final_particles.csv"))?)?;
     let window = 0.05;
-    let step = |u: f64| -> anyhow::Result<CollapsePoint> {
+    let step = |u: f64| -> anyhow::Result<UmfPoint> {
         let p = collapse(&bed, &checkpoint, u, 0.2, window)?;
-        if p.relative_std > 0.005 || p.mean_square_speed > 1e-4 {
+        if p.pressure_drop_std > STEADY_RELATIVE_STD * p.pressure_drop
+            || p.mean_square_speed >= FIXED_BED_MEAN_SQUARE_SPEED
+        {
             return collapse(&bed, &checkpoint, u, 0.4, window);
         }
         Ok(p)
     };
-    let points: anyhow::Result<Vec<CollapsePoint>> = std::thread::scope(|scope| {
+    let points: anyhow::Result<Vec<UmfPoint>> = std::thread::scope(|scope| {
         let mut points = Vec::new();
         for pair in [0.2, 0.3, 0.45].chunks(2) {
             let handles: Vec<_> = pair.iter().map(|&u| scope.spawn(move || step(u))).collect();
@@ -447,36 +295,7 @@ pub fn umf_sweep() -> anyhow::Result<UmfFit> {
         Ok(points)
     });
     let _ = std::fs::remove_dir_all(&dir);
-    let points = points?;
-    let w = points[0].weight_per_area;
-    // Least squares Δp = a U + b U² through the origin (2x2 normal equations).
-    let (mut s22, mut s23, mut s33, mut r2, mut r3) = (0.0, 0.0, 0.0, 0.0, 0.0);
-    for p in &points {
-        let (u, dp) = (p.u, p.pressure_drop);
-        s22 += u * u;
-        s23 += u * u * u;
-        s33 += u * u * u * u;
-        r2 += u * dp;
-        r3 += u * u * dp;
-    }
-    let det = s22 * s33 - s23 * s23;
-    let a = (r2 * s33 - r3 * s23) / det;
-    let b = (s22 * r3 - s23 * r2) / det;
-    let umf = 2.0 * w / (a + (a * a + 4.0 * b * w).sqrt());
-    let k = points.len() as f64;
-    let eps_mf = points.iter().map(|p| p.packed.0).sum::<f64>() / k;
-    let height = points.iter().map(|p| p.packed.1).sum::<f64>() / k;
-    let d = 1e-3;
-    Ok(UmfFit {
-        a,
-        b,
-        umf,
-        eps_mf,
-        height,
-        ergun: umf_ergun(d, bed.rho_p, bed.rho_g, bed.mu, bed.g, eps_mf),
-        wen_yu: umf_wen_yu(d, bed.rho_p, bed.rho_g, bed.mu, bed.g),
-        points,
-    })
+    fit_umf(points?, &bed, diameter)
 }
 
 /// Full catalogue only (measured 8.5 CPU minutes on the loaded machine).
@@ -500,9 +319,7 @@ fn umf_case(_: Mode) -> Measurement {
         .points
         .iter()
         .filter(|p| {
-            p.mean_square_speed >= 1e-4
-                || p.relative_std >= 0.005
-                || p.pressure_drop >= 0.95 * p.weight_per_area
+            !p.is_fixed_branch() || p.pressure_drop_std >= STEADY_RELATIVE_STD * p.pressure_drop
         })
         .map(|p| {
             Part::relative(
