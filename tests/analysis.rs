@@ -1093,6 +1093,71 @@ fn analyse_planar_bidisperse_bed() {
         u["stats"]["samples"].as_u64().unwrap() + excluded,
         json["velocity"]["samples"].as_u64().unwrap()
     );
+    // Bed height: twice the solids-volume centroid height of each
+    // snapshot, recomputed here from the snapshots (round-off: 1e-12).
+    let (bh, brows) = read_csv(&out.join("bed_timeseries.csv"));
+    let snaps = edpm::io::snapshot::Snapshot::read_all(&run).unwrap();
+    assert_eq!(brows.len(), snaps.len());
+    for (row, snap) in brows.iter().zip(&snaps) {
+        let (hv, v) = snap.particles.iter().fold((0.0, 0.0), |(hv, v), p| {
+            let vol = sphere_volume(p.radius);
+            (hv + p.pos.y * vol, v + vol)
+        });
+        assert!(rel(row[column(&bh, "bed_height_m")], 2.0 * hv / v) < 1e-12);
+    }
+    let bed = &json["bed"];
+    let mean_height = brows
+        .iter()
+        .map(|r| r[column(&bh, "bed_height_m")])
+        .sum::<f64>()
+        / brows.len() as f64;
+    assert!(rel(bed["bed_height_m"].as_f64().unwrap(), mean_height) < 1e-12);
+    assert_eq!(bed["void_solids_fraction_threshold"], 0.2);
+    // Side by side with a copy of itself: the comparison repeats the bed
+    // values and draws its figures.
+    let copy = dir.join("copy");
+    std::fs::create_dir_all(copy.join("snapshots")).unwrap();
+    for entry in std::fs::read_dir(run.join("snapshots")).unwrap() {
+        let path = entry.unwrap().path();
+        std::fs::copy(
+            &path,
+            copy.join("snapshots").join(path.file_name().unwrap()),
+        )
+        .unwrap();
+    }
+    for f in ["summary.json", "scenario.toml", "resolved.toml"] {
+        let _ = std::fs::copy(run.join(f), copy.join(f));
+    }
+    let cmp = dir.join("cmp");
+    assert_success(&edpm(&[
+        "analyse",
+        run.to_str().unwrap(),
+        copy.to_str().unwrap(),
+        "--cell-size",
+        "0.01",
+        "--min-per-cell",
+        "4",
+        "--compare-out",
+        cmp.to_str().unwrap(),
+    ]));
+    // comparison.csv: the run's name, then numbers.
+    let text = std::fs::read_to_string(cmp.join("comparison.csv")).unwrap();
+    let mut lines = text.lines();
+    let ch: Vec<String> = lines.next().unwrap().split(',').map(String::from).collect();
+    let crows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
+    assert_eq!(crows.len(), 2);
+    let value = |r: &[&str], name: &str| -> f64 { r[column(&ch, name)].parse().unwrap() };
+    for r in &crows {
+        assert!(rel(value(r, "bed_height_m"), mean_height) < 1e-12);
+        assert!(rel(value(r, "expansion"), bed["expansion"].as_f64().unwrap()) < 1e-12);
+    }
+    for f in [
+        "comparison.png",
+        "comparison_profiles.png",
+        "comparison_velocity.png",
+    ] {
+        assert!(cmp.join(f).exists(), "{f}");
+    }
     // Eq. 49 per snapshot, between 0 and 1 for this bed.
     let seg = &json["segregation"];
     assert_eq!(seg["species"]["by"], "radius");

@@ -1,7 +1,8 @@
 //! `edpm analyse RUN_A RUN_B ...`: the runs side by side (for example the
 //! ideal and the non-ideal riser): a table of heterogeneity and velocity
-//! statistics, snapshots at the last common time, and lateral solids
-//! fraction profiles.
+//! statistics with the bed height and voids, snapshots at the last common
+//! time, lateral solids fraction profiles, and the vertical velocity
+//! distributions.
 
 use std::path::Path;
 
@@ -13,8 +14,8 @@ use crate::io::output::{CsvTable, write_atomic};
 use crate::io::snapshot::Snapshot;
 use crate::plot::{self, Series};
 
-/// Writes `comparison.csv`, `comparison.md`, `comparison.png` and
-/// `comparison_profiles.png` into `out_dir`.
+/// Writes `comparison.csv`, `comparison.md`, `comparison.png`,
+/// `comparison_profiles.png` and `comparison_velocity.png` into `out_dir`.
 pub fn compare_runs(
     runs: &[(&Path, AnalysisSummary)],
     out_dir: &Path,
@@ -37,17 +38,34 @@ pub fn compare_runs(
         "sonine_a2",
         "sonine_a2_cell",
         "anisotropy",
+        "pressure_drop_over_weight",
+        "bed_height_m",
+        "expansion",
+        "voids_per_snapshot",
+        "void_diameter_mean_m",
+        "void_fraction",
     ]);
     let mut md = String::from(
         "| run | mean solids fraction | std/mean | counting noise | excess std/mean | \
-         particles in clusters | wall/core solids | T (m²/s²) | T_rot (m²/s²) | a2 pooled | a2 per cell | T_h/T_v |\n\
-         |---|---|---|---|---|---|---|---|---|---|---|---|\n",
+         particles in clusters | wall/core solids | T (m²/s²) | T_rot (m²/s²) | a2 pooled | a2 per cell | T_h/T_v | \
+         Δp / weight | bed height (m) | expansion | voids per snapshot | void diameter (m) | void share of bed |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
     );
     for (dir, s) in runs {
         let h = &s.heterogeneity;
         let v = &s.velocity;
         let anisotropy = v.anisotropy.values().next().copied().unwrap_or(f64::NAN);
         let wall = h.wall_to_core_ratio.unwrap_or(f64::NAN);
+        let dp = s.pressure_drop.as_ref().map_or(f64::NAN, |p| p.ratio);
+        let bed = s.bed.as_ref().map_or([f64::NAN; 5], |b| {
+            [
+                b.bed_height_m,
+                b.expansion,
+                b.voids_per_snapshot,
+                b.void_diameter_mean_m,
+                b.void_fraction,
+            ]
+        });
         table.labelled_row(
             &name(dir),
             &[
@@ -62,10 +80,16 @@ pub fn compare_runs(
                 v.sonine_a2,
                 v.sonine_a2_cell_normalised,
                 anisotropy,
+                dp,
+                bed[0],
+                bed[1],
+                bed[2],
+                bed[3],
+                bed[4],
             ],
         );
         md.push_str(&format!(
-            "| {} | {:.4} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.4} | {:.4} | {:.3} | {:.3} | {:.3} |\n",
+            "| {} | {:.4} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.4} | {:.4} | {:.3} | {:.3} | {:.3} | {:.3} | {:.4} | {:.3} | {:.2} | {:.4} | {:.3} |\n",
             name(dir),
             h.mean_solids_fraction,
             h.std_over_mean,
@@ -77,7 +101,13 @@ pub fn compare_runs(
             v.temperature_rotational,
             v.sonine_a2,
             v.sonine_a2_cell_normalised,
-            anisotropy
+            anisotropy,
+            dp,
+            bed[0],
+            bed[1],
+            bed[2],
+            bed[3],
+            bed[4]
         ));
     }
     table.write(&out_dir.join("comparison.csv"))?;
@@ -141,5 +171,42 @@ pub fn compare_runs(
         plot::Scale::LINEAR,
     )?;
     files.push("comparison_profiles.png".to_string());
+
+    // Vertical velocity fluctuations, each scaled by its own cell's
+    // temperature, against the Gaussian.
+    let axis = runs[0].1.vertical_axis;
+    let column = format!("f_{axis}_cell");
+    let mut series = Vec::new();
+    let mut gaussian = None;
+    for (dir, _) in runs {
+        let table = Table::read(&dir.join("analysis").join("velocity_distribution.csv"))?;
+        let (Some(x), Some(f), Some(g)) = (
+            table.column("c_over_sigma"),
+            table.column(&column),
+            table.column("gaussian"),
+        ) else {
+            continue;
+        };
+        let points = |k: usize| -> Vec<(f64, f64)> {
+            table
+                .rows
+                .iter()
+                .filter(|r| r[k] > 0.0)
+                .map(|r| (r[x], r[k]))
+                .collect()
+        };
+        series.push(Series::new(name(dir), points(f)));
+        gaussian.get_or_insert_with(|| Series::new("Gaussian", points(g)));
+    }
+    series.extend(gaussian);
+    plot::line_plot(
+        &out_dir.join("comparison_velocity.png"),
+        &format!("vertical velocity fluctuations ({axis}), each by its own cell's temperature"),
+        &format!("C_{axis} / √T_c (−)"),
+        "probability density (−)",
+        &series,
+        plot::Scale::LOG_Y,
+    )?;
+    files.push("comparison_velocity.png".to_string());
     Ok(files)
 }

@@ -14,11 +14,12 @@ use anyhow::{Context, bail};
 use glam::DVec3;
 use serde::Serialize;
 
+use super::bed::{BedFrame, BedSample, BedSummary, bed_sample, summarise};
 use super::energy::{EnergyBudget, energy_budget};
 use super::figure_spec::{FIGURES, FigureSpec};
 use super::grid::{
     cell_centre, cell_coords, cell_sums, cell_volume, grid_for_cell_size, single_cell_grid,
-    solids_fraction,
+    solids_fraction, sphere_volume,
 };
 use super::ktgf::{
     KineticTheory, KtgfSample, KtgfSettings, effective_restitution, ktgf_samples, sauter_diameter,
@@ -308,6 +309,8 @@ pub struct AnalysisSummary {
     /// The same per height band, bottom first.
     pub heterogeneity_by_height: Vec<HeightBand>,
     pub pressure_drop: Option<PressureDropSummary>,
+    /// Bed height, expansion and voids (runs with gravity), see [`super::bed`].
+    pub bed: Option<BedSummary>,
     pub energy: EnergySummary,
     pub ktgf: Option<KtgfSummary>,
     pub segregation: Option<SegregationSummary>,
@@ -661,6 +664,10 @@ struct Pass1<'a> {
     unaffected: Option<UnaffectedPass>,
     /// The collision tally grid (the KTGF cells).
     tally: Option<TallyGrid>,
+    /// Bed height and voids per snapshot (runs with gravity), and the
+    /// solids volume of the last snapshot (m³).
+    bed: Vec<BedSample>,
+    solids_volume: f64,
     notes: Vec<String>,
 }
 
@@ -807,6 +814,8 @@ impl<'a> Pass1<'a> {
             orient,
             grids,
             heights,
+            bed: Vec::new(),
+            solids_volume: 0.0,
             snapshots: 0,
             t_first: first.time,
             t_last: first.time,
@@ -843,6 +852,15 @@ impl<'a> Pass1<'a> {
 
     fn primary(&self) -> &TallyGrid {
         &self.grids[0].grid
+    }
+
+    fn bed_frame(&self) -> BedFrame {
+        BedFrame {
+            lo: self.lo,
+            hi: self.hi,
+            vertical: self.orient.vertical,
+            up: self.orient.up,
+        }
     }
 
     /// Resolves the KTGF settings and the species at the first snapshot
@@ -996,6 +1014,12 @@ impl<'a> Pass1<'a> {
         let eps = solids_fraction(&sums, &grid);
         let flux = vertical_flux(&sums, &grid, &self.orient);
         self.fields.add(&eps, &flux);
+        self.solids_volume = ps.iter().map(|q| sphere_volume(q.radius)).sum();
+        if self.gravity != DVec3::ZERO
+            && let Some(b) = bed_sample(snap.time, ps, &eps, &grid, &self.bed_frame())
+        {
+            self.bed.push(b);
+        }
         for (c, e) in eps.iter().enumerate() {
             let acc = if is_wall_cell(&grid, c, &self.orient, self.periodic, self.planar) {
                 &mut self.wall
@@ -1382,6 +1406,32 @@ pub fn analyse_run(run_dir: &Path, opts: &AnalyseOptions) -> anyhow::Result<Anal
             None
         }
     };
+    let bed = (!p.bed.is_empty()).then(|| summarise(&p.bed, p.solids_volume, &p.bed_frame()));
+    if bed.is_some() {
+        let mut t = header(&[
+            "time_s",
+            "centroid_height_m",
+            "bed_height_m",
+            "height_95_m",
+            "voids",
+            "void_diameter_mean_m",
+            "void_fraction",
+        ]);
+        for b in &p.bed {
+            let mean_d =
+                b.voids.iter().map(|v| v.equivalent_diameter).sum::<f64>() / b.voids.len() as f64;
+            t.row(&[
+                b.time,
+                b.centroid_height,
+                2.0 * b.centroid_height,
+                b.height_95,
+                b.voids.len() as f64,
+                mean_d,
+                b.void_fraction,
+            ]);
+        }
+        write("bed_timeseries.csv", &t)?;
+    }
     write("energy_budget.csv", &p.energy)?;
     let mean_energy = p.energy_sum.scaled(1.0 / snapshots);
     let energy = EnergySummary {
@@ -1587,6 +1637,7 @@ pub fn analyse_run(run_dir: &Path, opts: &AnalyseOptions) -> anyhow::Result<Anal
         heterogeneity,
         heterogeneity_by_height,
         pressure_drop,
+        bed,
         energy,
         ktgf,
         segregation,

@@ -37,6 +37,7 @@ pub const INTEGER_COLUMNS: &[&str] = &[
     "material",
     "point",
     "particles",
+    "voids",
     "pair_collisions",
     "wall_collisions",
     "collapse_reports",
