@@ -14,6 +14,60 @@ use crate::io::output::{CsvTable, write_atomic};
 use crate::io::snapshot::Snapshot;
 use crate::plot::{self, Series};
 
+/// Columns of `comparison.csv` after `run`, with their `comparison.md`
+/// headings and printed decimals.
+const COLUMNS: [(&str, &str, usize); 17] = [
+    ("mean_solids_fraction", "mean solids fraction", 4),
+    ("std_over_mean", "std/mean", 3),
+    ("poisson_std_over_mean", "counting noise", 3),
+    ("excess_std_over_mean", "excess std/mean", 3),
+    ("cluster_particle_fraction", "particles in clusters", 3),
+    ("wall_to_core_ratio", "wall/core solids", 3),
+    ("T_m2_s2", "T (m²/s²)", 4),
+    ("T_rot_m2_s2", "T_rot (m²/s²)", 4),
+    ("sonine_a2", "a2 pooled", 3),
+    ("sonine_a2_cell", "a2 per cell", 3),
+    ("anisotropy", "T_h/T_v", 3),
+    ("pressure_drop_over_weight", "Δp / weight", 3),
+    ("bed_height_m", "bed height (m)", 4),
+    ("expansion", "expansion", 3),
+    ("voids_per_snapshot", "voids per snapshot", 2),
+    ("void_diameter_mean_m", "void diameter (m)", 4),
+    ("void_fraction", "void share of bed", 3),
+];
+
+/// The values of [`COLUMNS`] for one run (NaN where undefined).
+fn row(s: &AnalysisSummary) -> [f64; 17] {
+    let h = &s.heterogeneity;
+    let v = &s.velocity;
+    let bed = s.bed.as_ref();
+    let of_bed = |f: fn(&super::bed::BedSummary) -> f64| bed.map_or(f64::NAN, f);
+    [
+        h.mean_solids_fraction,
+        h.std_over_mean,
+        h.poisson_std_over_mean,
+        h.excess_std_over_mean,
+        h.cluster_particle_fraction,
+        h.wall_to_core_ratio.unwrap_or(f64::NAN),
+        v.temperature,
+        v.temperature_rotational,
+        v.sonine_a2,
+        v.sonine_a2_cell_normalised,
+        v.anisotropy.values().next().copied().unwrap_or(f64::NAN),
+        s.pressure_drop.as_ref().map_or(f64::NAN, |p| p.ratio),
+        of_bed(|b| b.bed_height_m),
+        of_bed(|b| b.expansion),
+        of_bed(|b| b.voids_per_snapshot),
+        of_bed(|b| b.void_diameter_mean_m),
+        of_bed(|b| b.void_fraction),
+    ]
+}
+
+fn run_name(p: &Path) -> String {
+    p.file_name()
+        .map_or("run".to_string(), |n| n.to_string_lossy().into_owned())
+}
+
 /// Writes `comparison.csv`, `comparison.md`, `comparison.png`,
 /// `comparison_profiles.png` and `comparison_velocity.png` into `out_dir`.
 pub fn compare_runs(
@@ -21,104 +75,49 @@ pub fn compare_runs(
     out_dir: &Path,
 ) -> anyhow::Result<Vec<String>> {
     std::fs::create_dir_all(out_dir).with_context(|| format!("creating {}", out_dir.display()))?;
-    let name = |p: &Path| {
-        p.file_name()
-            .map_or("run".to_string(), |n| n.to_string_lossy().into_owned())
-    };
-    let mut table = CsvTable::new(&[
-        "run",
-        "mean_solids_fraction",
-        "std_over_mean",
-        "poisson_std_over_mean",
-        "excess_std_over_mean",
-        "cluster_particle_fraction",
-        "wall_to_core_ratio",
-        "T_m2_s2",
-        "T_rot_m2_s2",
-        "sonine_a2",
-        "sonine_a2_cell",
-        "anisotropy",
-        "pressure_drop_over_weight",
-        "bed_height_m",
-        "expansion",
-        "voids_per_snapshot",
-        "void_diameter_mean_m",
-        "void_fraction",
-    ]);
-    let mut md = String::from(
-        "| run | mean solids fraction | std/mean | counting noise | excess std/mean | \
-         particles in clusters | wall/core solids | T (m²/s²) | T_rot (m²/s²) | a2 pooled | a2 per cell | T_h/T_v | \
-         Δp / weight | bed height (m) | expansion | voids per snapshot | void diameter (m) | void share of bed |\n\
-         |---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
-    );
+    write_tables(runs, out_dir)?;
+    snapshot_figure(runs, &out_dir.join("comparison.png"))?;
+    profile_figure(runs, &out_dir.join("comparison_profiles.png"))?;
+    velocity_figure(runs, &out_dir.join("comparison_velocity.png"))?;
+    Ok([
+        "comparison.csv",
+        "comparison.md",
+        "comparison.png",
+        "comparison_profiles.png",
+        "comparison_velocity.png",
+    ]
+    .map(String::from)
+    .to_vec())
+}
+
+/// `comparison.csv` and `comparison.md`: one row per run.
+fn write_tables(runs: &[(&Path, AnalysisSummary)], out_dir: &Path) -> anyhow::Result<()> {
+    let mut header = vec!["run"];
+    header.extend(COLUMNS.map(|c| c.0));
+    let mut table = CsvTable::new(&header);
+    let mut md = String::from("| run |");
+    for (_, heading, _) in COLUMNS {
+        md.push_str(&format!(" {heading} |"));
+    }
+    md.push_str(&format!("\n|---|{}\n", "---|".repeat(COLUMNS.len())));
     for (dir, s) in runs {
-        let h = &s.heterogeneity;
-        let v = &s.velocity;
-        let anisotropy = v.anisotropy.values().next().copied().unwrap_or(f64::NAN);
-        let wall = h.wall_to_core_ratio.unwrap_or(f64::NAN);
-        let dp = s.pressure_drop.as_ref().map_or(f64::NAN, |p| p.ratio);
-        let bed = s.bed.as_ref().map_or([f64::NAN; 5], |b| {
-            [
-                b.bed_height_m,
-                b.expansion,
-                b.voids_per_snapshot,
-                b.void_diameter_mean_m,
-                b.void_fraction,
-            ]
-        });
-        table.labelled_row(
-            &name(dir),
-            &[
-                h.mean_solids_fraction,
-                h.std_over_mean,
-                h.poisson_std_over_mean,
-                h.excess_std_over_mean,
-                h.cluster_particle_fraction,
-                wall,
-                v.temperature,
-                v.temperature_rotational,
-                v.sonine_a2,
-                v.sonine_a2_cell_normalised,
-                anisotropy,
-                dp,
-                bed[0],
-                bed[1],
-                bed[2],
-                bed[3],
-                bed[4],
-            ],
-        );
-        md.push_str(&format!(
-            "| {} | {:.4} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.4} | {:.4} | {:.3} | {:.3} | {:.3} | {:.3} | {:.4} | {:.3} | {:.2} | {:.4} | {:.3} |\n",
-            name(dir),
-            h.mean_solids_fraction,
-            h.std_over_mean,
-            h.poisson_std_over_mean,
-            h.excess_std_over_mean,
-            h.cluster_particle_fraction,
-            wall,
-            v.temperature,
-            v.temperature_rotational,
-            v.sonine_a2,
-            v.sonine_a2_cell_normalised,
-            anisotropy,
-            dp,
-            bed[0],
-            bed[1],
-            bed[2],
-            bed[3],
-            bed[4]
-        ));
+        let values = row(s);
+        table.labelled_row(&run_name(dir), &values);
+        md.push_str(&format!("| {} |", run_name(dir)));
+        for (v, (_, _, decimals)) in values.iter().zip(COLUMNS) {
+            md.push_str(&format!(" {v:.decimals$} |"));
+        }
+        md.push('\n');
     }
     table.write(&out_dir.join("comparison.csv"))?;
-    write_atomic(&out_dir.join("comparison.md"), md.as_bytes())?;
-    let mut files = vec!["comparison.csv".to_string(), "comparison.md".to_string()];
+    write_atomic(&out_dir.join("comparison.md"), md.as_bytes())
+}
 
-    // Snapshots at the last time all runs reached.
+/// The snapshots at the last time all runs reached, side by side.
+fn snapshot_figure(runs: &[(&Path, AnalysisSummary)], path: &Path) -> anyhow::Result<()> {
     let mut snaps = Vec::new();
     for (dir, _) in runs {
-        let all = Snapshot::read_all(dir)?;
-        snaps.push(all);
+        snaps.push(Snapshot::read_all(dir)?);
     }
     let t_common = snaps
         .iter()
@@ -136,13 +135,14 @@ pub fn compare_runs(
             all.into_iter()
                 .rev()
                 .find(|s| s.time <= t_common * (1.0 + 1e-9))
-                .map(|s| (name(dir), s))
+                .map(|s| (run_name(dir), s))
         })
         .collect();
-    super::figures::snapshot_comparison(&out_dir.join("comparison.png"), &panels, vertical)?;
-    files.push("comparison.png".to_string());
+    super::figures::snapshot_comparison(path, &panels, vertical)
+}
 
-    // Lateral solids-fraction profiles, averaged over the profile heights.
+/// Lateral solids-fraction profiles, averaged over the profile heights.
+fn profile_figure(runs: &[(&Path, AnalysisSummary)], path: &Path) -> anyhow::Result<()> {
     let mut series = Vec::new();
     for (dir, _) in runs {
         let table = Table::read(&dir.join("analysis").join("profiles_width.csv"))?;
@@ -156,24 +156,25 @@ pub fn compare_runs(
             e.1 += 1.0;
         }
         series.push(Series::new(
-            name(dir),
+            run_name(dir),
             sums.into_iter()
                 .map(|(x, (s, n))| (x as f64 * 1e-9, s / n))
                 .collect(),
         ));
     }
     plot::line_plot(
-        &out_dir.join("comparison_profiles.png"),
+        path,
         "time-averaged solids fraction across the width (mean over heights)",
         super::figure_spec::LATERAL_POSITION,
         "solids fraction (−)",
         &series,
         plot::Scale::LINEAR,
-    )?;
-    files.push("comparison_profiles.png".to_string());
+    )
+}
 
-    // Vertical velocity fluctuations, each scaled by its own cell's
-    // temperature, against the Gaussian.
+/// Vertical velocity fluctuations, each scaled by its own cell's
+/// temperature, against the Gaussian.
+fn velocity_figure(runs: &[(&Path, AnalysisSummary)], path: &Path) -> anyhow::Result<()> {
     let axis = runs[0].1.vertical_axis;
     let column = format!("f_{axis}_cell");
     let mut series = Vec::new();
@@ -195,18 +196,16 @@ pub fn compare_runs(
                 .map(|r| (r[x], r[k]))
                 .collect()
         };
-        series.push(Series::new(name(dir), points(f)));
+        series.push(Series::new(run_name(dir), points(f)));
         gaussian.get_or_insert_with(|| Series::new("Gaussian", points(g)));
     }
     series.extend(gaussian);
     plot::line_plot(
-        &out_dir.join("comparison_velocity.png"),
+        path,
         &format!("vertical velocity fluctuations ({axis}), each by its own cell's temperature"),
         &format!("C_{axis} / √T_c (−)"),
         "probability density (−)",
         &series,
         plot::Scale::LOG_Y,
-    )?;
-    files.push("comparison_velocity.png".to_string());
-    Ok(files)
+    )
 }

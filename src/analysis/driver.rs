@@ -936,6 +936,45 @@ impl<'a> Pass1<'a> {
         }
     }
 
+    /// Pressure drop against the bed weight per area (gas runs).
+    fn add_pressure_drop(&mut self, snap: &Snapshot) {
+        let ps = &snap.particles;
+        if let (Some(table), Some(gas)) = (self.pressure.as_mut(), snap.gas.as_ref()) {
+            let (pb, pt) = pressure_bottom_top(gas, &self.orient);
+            let ext = self.hi - self.lo;
+            let area = (0..3)
+                .filter(|&a| a != self.orient.vertical)
+                .map(|a| ext[a])
+                .product::<f64>();
+            let weight = ps.iter().map(|p| p.mass).sum::<f64>() * self.gravity.length() / area;
+            table.row(&[snap.time, pb, pt, pb - pt, weight]);
+            self.pressure_sum[0] += pb - pt;
+            self.pressure_sum[1] += weight;
+            self.pressure_sum[2] += 1.0;
+        }
+    }
+
+    /// Degree of segregation (bidisperse beds).
+    fn add_segregation(&mut self, snap: &Snapshot) {
+        let ps = &snap.particles;
+        if let Some(Ok(species)) = &self.species
+            && let Some(s) = segregation(ps, species, &self.orient, self.lo, self.hi)
+        {
+            self.segregation.row(&[
+                snap.time,
+                s.n_small as f64,
+                s.n_large as f64,
+                s.h_small,
+                s.h_large,
+                s.x_large,
+                s.ratio,
+                s.ratio_max,
+                s.index,
+            ]);
+            self.segregation_values.push(s.index);
+        }
+    }
+
     fn add(&mut self, snap: &Snapshot, prev: Option<&Snapshot>) {
         self.decide(snap);
         self.snapshots += 1;
@@ -1051,37 +1090,8 @@ impl<'a> Pass1<'a> {
         let e = energy_budget(ps, &grid, self.gravity, self.lo, self.hi);
         self.energy.row(&e.row(snap.time));
         self.energy_sum.add(&e);
-        // Pressure drop.
-        if let (Some(table), Some(gas)) = (self.pressure.as_mut(), snap.gas.as_ref()) {
-            let (pb, pt) = pressure_bottom_top(gas, &self.orient);
-            let ext = self.hi - self.lo;
-            let area = (0..3)
-                .filter(|&a| a != self.orient.vertical)
-                .map(|a| ext[a])
-                .product::<f64>();
-            let weight = ps.iter().map(|p| p.mass).sum::<f64>() * self.gravity.length() / area;
-            table.row(&[snap.time, pb, pt, pb - pt, weight]);
-            self.pressure_sum[0] += pb - pt;
-            self.pressure_sum[1] += weight;
-            self.pressure_sum[2] += 1.0;
-        }
-        // Segregation.
-        if let Some(Ok(species)) = &self.species
-            && let Some(s) = segregation(ps, species, &self.orient, self.lo, self.hi)
-        {
-            self.segregation.row(&[
-                snap.time,
-                s.n_small as f64,
-                s.n_large as f64,
-                s.h_small,
-                s.h_large,
-                s.x_large,
-                s.ratio,
-                s.ratio_max,
-                s.index,
-            ]);
-            self.segregation_values.push(s.index);
-        }
+        self.add_pressure_drop(snap);
+        self.add_segregation(snap);
         // KTGF test over the interval since the previous snapshot.
         if let (Some(Ok(k)), Some(prev), Some(tally)) =
             (self.ktgf.as_mut(), prev, snap.collisions.as_ref())
