@@ -675,105 +675,148 @@ fn header(cols: &[&str]) -> CsvTable {
     CsvTable::new(cols)
 }
 
+/// The analysis grids: the requested cell sizes (or the run's tally grid,
+/// or cells of [`DEFAULT_CELL_DIAMETERS`] Sauter diameters), then the
+/// one-cell grid of the global mean.
+fn analysis_grids(
+    first: &Snapshot,
+    opts: &AnalyseOptions,
+    tally: Option<&TallyGrid>,
+    d: usize,
+) -> anyhow::Result<Vec<GridPass>> {
+    let (lo, hi, planar) = (first.lo, first.hi, first.planar);
+    let mut grids = Vec::new();
+    if opts.cell_sizes.is_empty() {
+        match tally.filter(|g| g.cells() > 1) {
+            Some(g) => {
+                let size = (0..d).map(|a| g.h[a]).fold(0.0, f64::max);
+                grids.push(GridPass::new(g.clone(), size, "tally grid of the run"));
+            }
+            None => {
+                let dp = sauter_diameter(&first.particles);
+                if !dp.is_finite() {
+                    bail!(
+                        "--cell-size: no particles in the first snapshot analysed (t = {} s) to size the default cells; give --cell-size",
+                        first.time
+                    );
+                }
+                let size = DEFAULT_CELL_DIAMETERS * dp;
+                grids.push(GridPass::new(
+                    grid_for_cell_size(lo, hi, planar, size),
+                    size,
+                    "default: 5 Sauter diameters",
+                ));
+            }
+        }
+    } else {
+        for &size in &opts.cell_sizes {
+            grids.push(GridPass::new(
+                grid_for_cell_size(lo, hi, planar, size),
+                size,
+                "--cell-size",
+            ));
+        }
+    }
+    for g in &grids {
+        if g.grid.cells() > MAX_CELLS {
+            bail!(
+                "--cell-size: {} m gives {} cells ({:?} per axis), more than {MAX_CELLS}",
+                g.info.cell_size,
+                g.grid.cells(),
+                g.grid.n
+            );
+        }
+    }
+    let e = hi - lo;
+    grids.push(GridPass::new(
+        single_cell_grid(lo, hi),
+        e.x.max(e.y).max(if planar { 0.0 } else { e.z }),
+        "one cell: global mean",
+    ));
+    Ok(grids)
+}
+
+/// Heights of the lateral profiles (m above the box bottom): `--heights`,
+/// checked against the box, or the centres of 5 equal bands.
+fn profile_heights(
+    opts: &AnalyseOptions,
+    orient: &Orientation,
+    box_height: f64,
+) -> anyhow::Result<Vec<f64>> {
+    Ok(if opts.heights.is_empty() {
+        (0..5)
+            .map(|k| (k as f64 + 0.5) / 5.0 * box_height)
+            .collect()
+    } else {
+        if let Some(h) = opts.heights.iter().find(|h| **h < 0.0 || **h > box_height) {
+            bail!(
+                "--heights: {h} m is outside the box, whose height along {} is 0 to {box_height} m",
+                AXIS_NAMES[orient.vertical]
+            );
+        }
+        opts.heights.clone()
+    })
+}
+
+/// Header of `temperature_timeseries.csv` in `d` dimensions.
+fn series_header(d: usize) -> CsvTable {
+    let axes: Vec<&str> = AXIS_NAMES[..d].to_vec();
+    let mut cols: Vec<String> = [
+        "time_s",
+        "particles",
+        "particles_used",
+        "cells_used",
+        "cells_skipped",
+    ]
+    .iter()
+    .map(|s| s.to_string())
+    .collect();
+    cols.extend(axes.iter().map(|a| format!("T_{a}_m2_s2")));
+    cols.extend(
+        [
+            "T_m2_s2",
+            "T_rot_m2_s2",
+            "T_global_m2_s2",
+            "sonine_a2",
+            "sonine_a2_cell",
+            "mean_solids_fraction",
+        ]
+        .iter()
+        .map(|s| s.to_string()),
+    );
+    header(&cols.iter().map(String::as_str).collect::<Vec<_>>())
+}
+
+/// The run's `scenario.toml`, or why it cannot be read.
+fn run_scenario(run_dir: &Path) -> Result<crate::scenario::Scenario, String> {
+    let scenario_path = run_dir.join("scenario.toml");
+    std::fs::read_to_string(&scenario_path)
+        .map_err(|e| format!("{}: {e}", scenario_path.display()))
+        .and_then(|text| {
+            crate::scenario::Scenario::from_str_named(
+                &text,
+                &scenario_path.display().to_string(),
+                &[],
+            )
+            .map_err(|e| e.to_string())
+        })
+}
+
 impl<'a> Pass1<'a> {
-    /// Long function: builds every accumulator of the first pass (grids,
-    /// cell pools, KTGF state, tables with their headers) in one struct
-    /// literal, about 170 lines; not split in the issue-10 refactor.
+    /// Empty accumulators for the run whose first snapshot analysed is
+    /// `first`.
     fn new(run_dir: &Path, first: &Snapshot, opts: &'a AnalyseOptions) -> anyhow::Result<Self> {
         let (lo, hi, planar) = (first.lo, first.hi, first.planar);
         let d = if planar { 2 } else { 3 };
         let d_rot = if planar { 1 } else { 3 };
         let mut notes = Vec::new();
         let tally = first.collisions.as_ref().map(|c| c.grid.clone());
-        let mut grids = Vec::new();
-        if opts.cell_sizes.is_empty() {
-            match tally.as_ref().filter(|g| g.cells() > 1) {
-                Some(g) => {
-                    let size = (0..d).map(|a| g.h[a]).fold(0.0, f64::max);
-                    grids.push(GridPass::new(g.clone(), size, "tally grid of the run"));
-                }
-                None => {
-                    let dp = sauter_diameter(&first.particles);
-                    if !dp.is_finite() {
-                        bail!(
-                            "--cell-size: no particles in the first snapshot analysed (t = {} s) to size the default cells; give --cell-size",
-                            first.time
-                        );
-                    }
-                    let size = DEFAULT_CELL_DIAMETERS * dp;
-                    grids.push(GridPass::new(
-                        grid_for_cell_size(lo, hi, planar, size),
-                        size,
-                        "default: 5 Sauter diameters",
-                    ));
-                }
-            }
-        } else {
-            for &size in &opts.cell_sizes {
-                grids.push(GridPass::new(
-                    grid_for_cell_size(lo, hi, planar, size),
-                    size,
-                    "--cell-size",
-                ));
-            }
-        }
-        for g in &grids {
-            if g.grid.cells() > MAX_CELLS {
-                bail!(
-                    "--cell-size: {} m gives {} cells ({:?} per axis), more than {MAX_CELLS}",
-                    g.info.cell_size,
-                    g.grid.cells(),
-                    g.grid.n
-                );
-            }
-        }
-        let e = hi - lo;
-        grids.push(GridPass::new(
-            single_cell_grid(lo, hi),
-            e.x.max(e.y).max(if planar { 0.0 } else { e.z }),
-            "one cell: global mean",
-        ));
+        let grids = analysis_grids(first, opts, tally.as_ref(), d)?;
         let primary = grids[0].grid.clone();
         let orient = orientation(first.gravity, primary.n, planar);
         let box_height = orient.box_height(lo, hi);
-        let heights = if opts.heights.is_empty() {
-            (0..5)
-                .map(|k| (k as f64 + 0.5) / 5.0 * box_height)
-                .collect()
-        } else {
-            if let Some(h) = opts.heights.iter().find(|h| **h < 0.0 || **h > box_height) {
-                bail!(
-                    "--heights: {h} m is outside the box, whose height along {} is 0 to {box_height} m",
-                    AXIS_NAMES[orient.vertical]
-                );
-            }
-            opts.heights.clone()
-        };
-        let axes: Vec<&str> = AXIS_NAMES[..d].to_vec();
-        let mut cols: Vec<String> = [
-            "time_s",
-            "particles",
-            "particles_used",
-            "cells_used",
-            "cells_skipped",
-        ]
-        .iter()
-        .map(|s| s.to_string())
-        .collect();
-        cols.extend(axes.iter().map(|a| format!("T_{a}_m2_s2")));
-        cols.extend(
-            [
-                "T_m2_s2",
-                "T_rot_m2_s2",
-                "T_global_m2_s2",
-                "sonine_a2",
-                "sonine_a2_cell",
-                "mean_solids_fraction",
-            ]
-            .iter()
-            .map(|s| s.to_string()),
-        );
-        let series = header(&cols.iter().map(String::as_str).collect::<Vec<_>>());
+        let heights = profile_heights(opts, &orient, box_height)?;
+        let series = series_header(d);
         let pressure = first.gas.as_ref().map(|_| {
             header(&[
                 "time_s",
@@ -783,17 +826,7 @@ impl<'a> Pass1<'a> {
                 "bed_weight_per_area_Pa",
             ])
         });
-        let scenario_path = run_dir.join("scenario.toml");
-        let scenario = std::fs::read_to_string(&scenario_path)
-            .map_err(|e| format!("{}: {e}", scenario_path.display()))
-            .and_then(|text| {
-                crate::scenario::Scenario::from_str_named(
-                    &text,
-                    &scenario_path.display().to_string(),
-                    &[],
-                )
-                .map_err(|e| e.to_string())
-            });
+        let scenario = run_scenario(run_dir);
         if planar {
             notes.push(
                 "planar mode: solids fractions are slab fractions (particle volume over cell area × bed depth); \
@@ -1129,21 +1162,44 @@ fn used(snap: &Snapshot, t_start: f64) -> bool {
     snap.time >= t_start - 1e-12 * t_start.abs()
 }
 
-/// Analyses the snapshots of `run_dir` and writes the results into
-/// `run_dir/analysis/`.
-/// Long function: about 500 lines in sections that share the two passes'
-/// accumulators (pass 1, pass 2, distributions, cell-size dependence, cell
-/// fields, profiles, heterogeneity, KTGF, segregation, figures); one
-/// function per output file is the next step of issue 10, not done in the
-/// structural refactor.
-pub fn analyse_run(run_dir: &Path, opts: &AnalyseOptions) -> anyhow::Result<AnalysisSummary> {
-    check_options(opts)?;
-    let paths = snapshot_paths(run_dir)?;
-    // Pass 1: every statistic.
+/// Pass-2 sums on the primary grid: the velocity histograms (scaled by the
+/// pass-1 statistics), the cluster counts (threshold from the pass-1 mean
+/// solids fraction) and the per-height-band sums.
+struct Pass2 {
+    hist: Histograms,
+    /// Particle samples in cells above the cluster threshold, and in all.
+    in_clusters: u64,
+    particles_total: u64,
+    /// Σ particle volume over the snapshots used (m³).
+    particle_volume_sum: f64,
+    bands: [BandSums; HEIGHT_BANDS],
+}
+
+/// `RUN_DIR/analysis/` and the names of the files written into it, in the
+/// order written.
+struct OutputFiles {
+    dir: PathBuf,
+    names: Vec<String>,
+}
+
+impl OutputFiles {
+    fn write(&mut self, name: &str, table: &CsvTable) -> anyhow::Result<()> {
+        table.write(&self.dir.join(name))?;
+        self.names.push(name.to_string());
+        Ok(())
+    }
+}
+
+/// Pass 1 over the snapshots at `t ≥ t_start`: every statistic.
+fn first_pass<'a>(
+    run_dir: &Path,
+    paths: &[PathBuf],
+    opts: &'a AnalyseOptions,
+) -> anyhow::Result<Pass1<'a>> {
     let mut pass: Option<Pass1> = None;
     let mut prev: Option<Snapshot> = None;
     let mut last_time = f64::NAN;
-    for path in &paths {
+    for path in paths {
         let snap = Snapshot::read(path)?;
         last_time = snap.time;
         if used(&snap, opts.t_start) {
@@ -1158,37 +1214,32 @@ pub fn analyse_run(run_dir: &Path, opts: &AnalyseOptions) -> anyhow::Result<Anal
         }
         prev = Some(snap);
     }
-    let Some(mut p) = pass else {
+    let Some(p) = pass else {
         bail!(
             "--t-start: no snapshot at t >= {} s (the last of {} is at t = {last_time} s)",
             opts.t_start,
             paths.len()
         );
     };
-    let (d, d_rot) = (p.d, p.d_rot);
-    let results: Vec<CellSizeResult> = p.grids.iter().map(|g| g.result(d, d_rot)).collect();
-    for r in &results {
-        if r.cell_samples_used == 0 {
-            p.notes.push(format!(
-                "cell size {} m: no cell ever held --min-per-cell = {} particles; its statistics are undefined (NaN)",
-                r.grid.cell_size, opts.min_per_cell
-            ));
-        }
-    }
-    let stats = results[0].stats.clone();
-    let grid = p.primary().clone();
-    let (mean_eps_field, mean_flux_field) = p.fields.mean();
-    let [es, es2, en] = p.grids[0].eps;
-    let eps_mean = es / en;
-    let eps_std = (es2 / en - eps_mean * eps_mean).max(0.0).sqrt();
-    let cluster_threshold = (CLUSTER_FACTOR * eps_mean).max(CLUSTER_MIN);
+    Ok(p)
+}
 
-    // Pass 2: histograms and clusters.
-    let mut hist = Histograms::new(opts.bins, &stats, d);
+/// Pass 2 over the snapshots at `t ≥ t_start`: histograms, clusters above
+/// `cluster_threshold` and the height bands on the primary `grid`.
+fn second_pass(
+    p: &Pass1,
+    paths: &[PathBuf],
+    grid: &TallyGrid,
+    stats: &VelocityStats,
+    mean_eps_field: &[f64],
+    cluster_threshold: f64,
+) -> anyhow::Result<Pass2> {
+    let opts = p.opts;
+    let mut hist = Histograms::new(opts.bins, stats, p.d);
     let (mut in_clusters, mut particles_total) = (0u64, 0u64);
     let mut particle_volume_sum = 0.0;
     let layers = grid.n[p.orient.vertical];
-    let band_of = |c: usize| p.orient.layer(&grid, c) * HEIGHT_BANDS / layers;
+    let band_of = |c: usize| p.orient.layer(grid, c) * HEIGHT_BANDS / layers;
     let mut band_mean = [[0.0f64; 2]; HEIGHT_BANDS];
     for (c, e) in mean_eps_field.iter().enumerate() {
         band_mean[band_of(c)][0] += e;
@@ -1196,12 +1247,12 @@ pub fn analyse_run(run_dir: &Path, opts: &AnalyseOptions) -> anyhow::Result<Anal
     }
     let band_threshold = band_mean.map(|[s, n]| (CLUSTER_FACTOR * s / n.max(1.0)).max(CLUSTER_MIN));
     let mut bands = [BandSums::default(); HEIGHT_BANDS];
-    for path in &paths {
+    for path in paths {
         let snap = Snapshot::read(path)?;
         if !used(&snap, opts.t_start) {
             continue;
         }
-        for f in &local_fluctuations(&snap.particles, &grid, opts.min_per_cell).samples {
+        for f in &local_fluctuations(&snap.particles, grid, opts.min_per_cell).samples {
             hist.add(f);
         }
         particle_volume_sum += snap
@@ -1209,8 +1260,8 @@ pub fn analyse_run(run_dir: &Path, opts: &AnalyseOptions) -> anyhow::Result<Anal
             .iter()
             .map(|q| 4.0 / 3.0 * std::f64::consts::PI * q.radius.powi(3))
             .sum::<f64>();
-        let (sums, cells) = cell_sums(&snap.particles, &grid);
-        let eps = solids_fraction(&sums, &grid);
+        let (sums, cells) = cell_sums(&snap.particles, grid);
+        let eps = solids_fraction(&sums, grid);
         particles_total += cells.len() as u64;
         in_clusters += cells
             .iter()
@@ -1221,7 +1272,7 @@ pub fn analyse_run(run_dir: &Path, opts: &AnalyseOptions) -> anyhow::Result<Anal
             b.eps[0] += e;
             b.eps[1] += e * e;
             b.eps[2] += 1.0;
-            let side = if is_wall_cell(&grid, c, &p.orient, p.periodic, p.planar) {
+            let side = if is_wall_cell(grid, c, &p.orient, p.periodic, p.planar) {
                 &mut b.wall
             } else {
                 &mut b.core
@@ -1235,18 +1286,18 @@ pub fn analyse_run(run_dir: &Path, opts: &AnalyseOptions) -> anyhow::Result<Anal
             bands[b].clustered += u64::from(eps[c] > band_threshold[b]);
         }
     }
+    Ok(Pass2 {
+        hist,
+        in_clusters,
+        particles_total,
+        particle_volume_sum,
+        bands,
+    })
+}
 
-    let out_dir = run_dir.join("analysis");
-    std::fs::create_dir_all(&out_dir).with_context(|| format!("creating {}", out_dir.display()))?;
-    let mut files = Vec::new();
-    let mut write = |name: &str, table: &CsvTable| -> anyhow::Result<()> {
-        table.write(&out_dir.join(name))?;
-        files.push(name.to_string());
-        Ok(())
-    };
-    let axes: Vec<&str> = AXIS_NAMES[..d].to_vec();
-
-    // Velocity distributions.
+/// `velocity_distribution.csv`: component distributions, pooled and per
+/// cell, with the Gaussian.
+fn velocity_distribution_table(hist: &Histograms, axes: &[&str]) -> CsvTable {
     let mut cols = vec!["c_over_sigma".to_string()];
     cols.extend(axes.iter().map(|a| format!("f_{a}")));
     cols.extend(axes.iter().map(|a| format!("f_{a}_cell")));
@@ -1255,14 +1306,20 @@ pub fn analyse_run(run_dir: &Path, opts: &AnalyseOptions) -> anyhow::Result<Anal
     for row in hist.component_rows() {
         t.row(&row);
     }
-    write("velocity_distribution.csv", &t)?;
+    t
+}
+
+/// `speed_distribution.csv`: speed distributions with the Maxwellian.
+fn speed_distribution_table(hist: &Histograms) -> CsvTable {
     let mut t = header(&["c_over_sqrt_T", "f", "f_cell", "maxwellian"]);
     for row in hist.speed_rows() {
         t.row(&row);
     }
-    write("speed_distribution.csv", &t)?;
+    t
+}
 
-    // Cell-size dependence.
+/// `cell_size_dependence.csv`: one row per analysis grid.
+fn cell_size_table(results: &[CellSizeResult], axes: &[&str]) -> CsvTable {
     let mut cols: Vec<String> = [
         "cell_size_m",
         "h_x_m",
@@ -1294,7 +1351,7 @@ pub fn analyse_run(run_dir: &Path, opts: &AnalyseOptions) -> anyhow::Result<Anal
     cols.extend(axes.iter().map(|a| format!("kurtosis_{a}_cell")));
     cols.push("solids_fraction_std_over_mean".to_string());
     let mut t = header(&cols.iter().map(String::as_str).collect::<Vec<_>>());
-    for r in &results {
+    for r in results {
         let mut row = vec![
             r.grid.cell_size,
             r.grid.h[0],
@@ -1320,10 +1377,18 @@ pub fn analyse_run(run_dir: &Path, opts: &AnalyseOptions) -> anyhow::Result<Anal
         row.push(r.solids_fraction_std_over_mean);
         t.row(&row);
     }
-    write("cell_size_dependence.csv", &t)?;
-    write("temperature_timeseries.csv", &p.series)?;
+    t
+}
 
-    // Cell fields.
+/// `cell_fields.csv`: time-averaged fields per primary-grid cell.
+fn cell_fields_table(
+    p: &Pass1,
+    grid: &TallyGrid,
+    mean_eps_field: &[f64],
+    mean_flux_field: &[f64],
+    axes: &[&str],
+) -> CsvTable {
+    let (d, d_rot) = (p.d, p.d_rot);
     let mut cols: Vec<String> = [
         "cell",
         "i",
@@ -1348,8 +1413,8 @@ pub fn analyse_run(run_dir: &Path, opts: &AnalyseOptions) -> anyhow::Result<Anal
     let mut t = header(&cols.iter().map(String::as_str).collect::<Vec<_>>());
     let snapshots = p.snapshots.max(1) as f64;
     for (c, pool) in p.cells.iter().enumerate() {
-        let [i, j, k] = cell_coords(&grid, c);
-        let x = cell_centre(&grid, c);
+        let [i, j, k] = cell_coords(grid, c);
+        let x = cell_centre(grid, c);
         let v = pool.momentum / pool.mass;
         let mut row = vec![
             c as f64,
@@ -1373,9 +1438,16 @@ pub fn analyse_run(run_dir: &Path, opts: &AnalyseOptions) -> anyhow::Result<Anal
         row.push(pool.inertia_w2 / (d_rot as f64 * pool.mass_used));
         t.row(&row);
     }
-    write("cell_fields.csv", &t)?;
+    t
+}
 
-    // Profiles.
+/// `profiles_width.csv`: lateral profiles at the profile heights.
+fn width_profiles_table(
+    p: &Pass1,
+    grid: &TallyGrid,
+    mean_eps_field: &[f64],
+    mean_flux_field: &[f64],
+) -> CsvTable {
     let o = p.orient;
     let mut t = header(&[
         "height_m",
@@ -1385,24 +1457,41 @@ pub fn analyse_run(run_dir: &Path, opts: &AnalyseOptions) -> anyhow::Result<Anal
         "solids_flux_kg_m2_s",
     ]);
     for &h in &p.heights {
-        let layer = o.layer_of_height(&grid, h);
-        let eps = width_profile(&mean_eps_field, &grid, &o, layer);
-        let flux = width_profile(&mean_flux_field, &grid, &o, layer);
+        let layer = o.layer_of_height(grid, h);
+        let eps = width_profile(mean_eps_field, grid, &o, layer);
+        let flux = width_profile(mean_flux_field, grid, &o, layer);
         for ((w, e), (_, f)) in eps.iter().zip(&flux) {
-            t.row(&[h, o.layer_height(&grid, layer), *w, *e, *f]);
+            t.row(&[h, o.layer_height(grid, layer), *w, *e, *f]);
         }
     }
-    write("profiles_width.csv", &t)?;
+    t
+}
+
+/// `profile_height.csv`: layer means along the vertical.
+fn height_profile_table(
+    o: &Orientation,
+    grid: &TallyGrid,
+    mean_eps_field: &[f64],
+    mean_flux_field: &[f64],
+) -> CsvTable {
     let mut t = header(&["height_m", "solids_fraction", "solids_flux_kg_m2_s"]);
-    let eps_layers = layer_means(&mean_eps_field, &grid, &o);
-    let flux_layers = layer_means(&mean_flux_field, &grid, &o);
+    let eps_layers = layer_means(mean_eps_field, grid, o);
+    let flux_layers = layer_means(mean_flux_field, grid, o);
     for (l, (e, f)) in eps_layers.iter().zip(&flux_layers).enumerate() {
-        t.row(&[o.layer_height(&grid, l), *e, *f]);
+        t.row(&[o.layer_height(grid, l), *e, *f]);
     }
-    write("profile_height.csv", &t)?;
-    let pressure_drop = match &p.pressure {
+    t
+}
+
+/// Writes `pressure_drop.csv` (gas runs) and returns its time average;
+/// without gas, a note.
+fn pressure_drop_summary(
+    p: &mut Pass1,
+    out: &mut OutputFiles,
+) -> anyhow::Result<Option<PressureDropSummary>> {
+    Ok(match &p.pressure {
         Some(table) => {
-            write("pressure_drop.csv", table)?;
+            out.write("pressure_drop.csv", table)?;
             let [dp, w, n] = p.pressure_sum;
             Some(PressureDropSummary {
                 mean_pressure_drop: dp / n,
@@ -1415,42 +1504,55 @@ pub fn analyse_run(run_dir: &Path, opts: &AnalyseOptions) -> anyhow::Result<Anal
                 .push("no gas phase: no pressure-drop time series".to_string());
             None
         }
-    };
-    let bed = (!p.bed.is_empty()).then(|| summarise(&p.bed, p.solids_volume, &p.bed_frame()));
-    if bed.is_some() {
-        let mut t = header(&[
-            "time_s",
-            "centroid_height_m",
-            "bed_height_m",
-            "height_95_m",
-            "voids",
-            "void_diameter_mean_m",
-            "void_fraction",
-        ]);
-        for b in &p.bed {
-            let mean_d =
-                b.voids.iter().map(|v| v.equivalent_diameter).sum::<f64>() / b.voids.len() as f64;
-            t.row(&[
-                b.time,
-                b.centroid_height,
-                2.0 * b.centroid_height,
-                b.height_95,
-                b.voids.len() as f64,
-                mean_d,
-                b.void_fraction,
-            ]);
-        }
-        write("bed_timeseries.csv", &t)?;
-    }
-    write("energy_budget.csv", &p.energy)?;
-    let mean_energy = p.energy_sum.scaled(1.0 / snapshots);
-    let energy = EnergySummary {
-        mean: mean_energy,
-        percent_of_total: mean_energy.scaled(100.0 / mean_energy.total),
-    };
+    })
+}
 
-    // Heterogeneity.
-    let side_walls = has_side_walls(&o, p.periodic, p.planar);
+/// `bed_timeseries.csv`: bed height and voids per snapshot.
+fn bed_timeseries_table(bed: &[BedSample]) -> CsvTable {
+    let mut t = header(&[
+        "time_s",
+        "centroid_height_m",
+        "bed_height_m",
+        "height_95_m",
+        "voids",
+        "void_diameter_mean_m",
+        "void_fraction",
+    ]);
+    for b in bed {
+        let mean_d =
+            b.voids.iter().map(|v| v.equivalent_diameter).sum::<f64>() / b.voids.len() as f64;
+        t.row(&[
+            b.time,
+            b.centroid_height,
+            2.0 * b.centroid_height,
+            b.height_95,
+            b.voids.len() as f64,
+            mean_d,
+            b.void_fraction,
+        ]);
+    }
+    t
+}
+
+/// Mean, standard deviation and count of the primary grid's cell solids
+/// fractions over all snapshots used (`[mean, std, samples]`).
+fn primary_solids_fraction(p: &Pass1) -> [f64; 3] {
+    let [es, es2, en] = p.grids[0].eps;
+    let eps_mean = es / en;
+    let eps_std = (es2 / en - eps_mean * eps_mean).max(0.0).sqrt();
+    [eps_mean, eps_std, en]
+}
+
+/// Heterogeneity of the solids fraction on the primary grid; a note when
+/// there is no wall-layer/core comparison.
+fn heterogeneity_summary(
+    p: &mut Pass1,
+    p2: &Pass2,
+    grid: &TallyGrid,
+    cluster_threshold: f64,
+) -> Heterogeneity {
+    let [eps_mean, eps_std, en] = primary_solids_fraction(p);
+    let side_walls = has_side_walls(&p.orient, p.periodic, p.planar);
     let (wall, core) = if side_walls && p.core[1] > 0.0 && p.wall[1] > 0.0 {
         (Some(p.wall[0] / p.wall[1]), Some(p.core[0] / p.core[1]))
     } else {
@@ -1461,9 +1563,9 @@ pub fn analyse_run(run_dir: &Path, opts: &AnalyseOptions) -> anyhow::Result<Anal
         });
         (None, None)
     };
-    let mean_particle_volume = particle_volume_sum / particles_total.max(1) as f64;
-    let poisson = (mean_particle_volume / (eps_mean * super::grid::cell_volume(&grid))).sqrt();
-    let heterogeneity = Heterogeneity {
+    let mean_particle_volume = p2.particle_volume_sum / p2.particles_total.max(1) as f64;
+    let poisson = (mean_particle_volume / (eps_mean * super::grid::cell_volume(grid))).sqrt();
+    Heterogeneity {
         cell_samples: en as u64,
         mean_solids_fraction: eps_mean,
         std_solids_fraction: eps_std,
@@ -1473,20 +1575,27 @@ pub fn analyse_run(run_dir: &Path, opts: &AnalyseOptions) -> anyhow::Result<Anal
             .max(0.0)
             .sqrt(),
         cluster_threshold,
-        cluster_particle_fraction: in_clusters as f64 / particles_total.max(1) as f64,
+        cluster_particle_fraction: p2.in_clusters as f64 / p2.particles_total.max(1) as f64,
         wall_layer_solids_fraction: wall,
         core_solids_fraction: core,
         wall_to_core_ratio: wall.zip(core).map(|(w, c)| w / c),
-    };
+    }
+}
 
+/// The heterogeneity per height band, bottom first.
+fn heterogeneity_by_height(p: &Pass1, p2: &Pass2, grid: &TallyGrid) -> Vec<HeightBand> {
+    let o = p.orient;
+    let side_walls = has_side_walls(&o, p.periodic, p.planar);
+    let mean_particle_volume = p2.particle_volume_sum / p2.particles_total.max(1) as f64;
+    let layers = grid.n[o.vertical];
     let band_height = grid.h[o.vertical] * layers as f64 / HEIGHT_BANDS as f64;
-    let heterogeneity_by_height: Vec<HeightBand> = bands
+    p2.bands
         .iter()
         .enumerate()
         .map(|(i, b)| {
             let mean = b.eps[0] / b.eps[2];
             let std_over_mean = (b.eps[1] / b.eps[2] - mean * mean).max(0.0).sqrt() / mean;
-            let poisson = (mean_particle_volume / (mean * super::grid::cell_volume(&grid))).sqrt();
+            let poisson = (mean_particle_volume / (mean * super::grid::cell_volume(grid))).sqrt();
             HeightBand {
                 height_lo: i as f64 * band_height,
                 height_hi: (i + 1) as f64 * band_height,
@@ -1499,7 +1608,11 @@ pub fn analyse_run(run_dir: &Path, opts: &AnalyseOptions) -> anyhow::Result<Anal
                     .then(|| (b.wall[0] / b.wall[1]) / (b.core[0] / b.core[1])),
             }
         })
-        .collect();
+        .collect()
+}
+
+/// `heterogeneity_by_height.csv`.
+fn heterogeneity_by_height_table(bands: &[HeightBand]) -> CsvTable {
     let mut t = header(&[
         "height_lo_m",
         "height_hi_m",
@@ -1510,7 +1623,7 @@ pub fn analyse_run(run_dir: &Path, opts: &AnalyseOptions) -> anyhow::Result<Anal
         "cluster_particle_fraction",
         "wall_to_core_ratio",
     ]);
-    for b in &heterogeneity_by_height {
+    for b in bands {
         t.row(&[
             b.height_lo,
             b.height_hi,
@@ -1522,13 +1635,21 @@ pub fn analyse_run(run_dir: &Path, opts: &AnalyseOptions) -> anyhow::Result<Anal
             b.wall_to_core_ratio.unwrap_or(f64::NAN),
         ]);
     }
-    write("heterogeneity_by_height.csv", &t)?;
+    t
+}
 
-    // KTGF test.
-    let ktgf = match p.ktgf.take() {
+/// Writes `ktgf_samples.csv` and `ktgf_binned.csv` and returns the KTGF
+/// test; otherwise (or when no sample qualified) a note.
+fn ktgf_summary(
+    p: &mut Pass1,
+    out: &mut OutputFiles,
+    grid: &TallyGrid,
+) -> anyhow::Result<Option<KtgfSummary>> {
+    let (d, opts) = (p.d, p.opts);
+    Ok(match p.ktgf.take() {
         Some(Ok(k)) => {
-            write("ktgf_samples.csv", &k.samples)?;
-            write("ktgf_binned.csv", &k.binned())?;
+            out.write("ktgf_samples.csv", &k.samples)?;
+            out.write("ktgf_binned.csv", &k.binned())?;
             if k.all.samples == 0 {
                 p.notes.push(format!(
                     "KTGF test: no tally cell had {} particles and {} collisions in an interval (see --min-per-cell, --min-collisions)",
@@ -1542,7 +1663,7 @@ pub fn analyse_run(run_dir: &Path, opts: &AnalyseOptions) -> anyhow::Result<Anal
                 ));
             }
             let tally = p.tally.as_ref().map_or_else(
-                || GridInfo::new(&grid, f64::NAN, "none"),
+                || GridInfo::new(grid, f64::NAN, "none"),
                 |g| {
                     GridInfo::new(
                         g,
@@ -1573,12 +1694,18 @@ pub fn analyse_run(run_dir: &Path, opts: &AnalyseOptions) -> anyhow::Result<Anal
                 .push("KTGF test skipped: no particles in the snapshots".to_string());
             None
         }
-    };
+    })
+}
 
-    // Segregation.
-    let segregation = match p.species.take() {
+/// Writes `segregation.csv` (bidisperse runs) and returns the segregation
+/// index summary; otherwise a note.
+fn segregation_summary(
+    p: &mut Pass1,
+    out: &mut OutputFiles,
+) -> anyhow::Result<Option<SegregationSummary>> {
+    Ok(match p.species.take() {
         Some(Ok(species)) if !p.segregation_values.is_empty() => {
-            write("segregation.csv", &p.segregation)?;
+            out.write("segregation.csv", &p.segregation)?;
             let v = &p.segregation_values;
             Some(SegregationSummary {
                 species,
@@ -1597,27 +1724,124 @@ pub fn analyse_run(run_dir: &Path, opts: &AnalyseOptions) -> anyhow::Result<Anal
                 .push("segregation index skipped: a species is missing".to_string());
             None
         }
-    };
+    })
+}
 
-    // Figures from the CSV files above, and the last snapshot.
+/// Draws the figures from the CSV files written, and the last snapshot; a
+/// figure that fails becomes a note.
+fn draw_figures(
+    run_dir: &Path,
+    paths: &[PathBuf],
+    vertical: usize,
+    out: &mut OutputFiles,
+    notes: &mut Vec<String>,
+) -> anyhow::Result<()> {
     let title = run_dir
         .file_name()
         .map_or("run".to_string(), |n| n.to_string_lossy().into_owned());
-    match super::figures::draw_all(&out_dir, &title) {
-        Ok(names) => files.extend(names),
-        Err(e) => p.notes.push(format!("figures not drawn: {e:#}")),
+    match super::figures::draw_all(&out.dir, &title) {
+        Ok(names) => out.names.extend(names),
+        Err(e) => notes.push(format!("figures not drawn: {e:#}")),
     }
     if let Some(last) = paths.last() {
         let snap = Snapshot::read(last)?;
-        let png = out_dir.join("snapshot.png");
-        match super::figures::snapshot_comparison(&png, &[(title.clone(), snap)], o.vertical) {
-            Ok(()) => files.push("snapshot.png".to_string()),
-            Err(e) => p.notes.push(format!("snapshot figure not drawn: {e:#}")),
+        let png = out.dir.join("snapshot.png");
+        match super::figures::snapshot_comparison(&png, &[(title.clone(), snap)], vertical) {
+            Ok(()) => out.names.push("snapshot.png".to_string()),
+            Err(e) => notes.push(format!("snapshot figure not drawn: {e:#}")),
         }
     }
+    Ok(())
+}
 
-    files.push("analysis.json".to_string());
-    let total = hist.total.max(1) as f64;
+/// Velocity statistics on every grid, with a note for each grid where no
+/// cell ever held `min_per_cell` particles.
+fn cell_size_results(p: &mut Pass1) -> Vec<CellSizeResult> {
+    let (d, d_rot) = (p.d, p.d_rot);
+    let results: Vec<CellSizeResult> = p.grids.iter().map(|g| g.result(d, d_rot)).collect();
+    for r in &results {
+        if r.cell_samples_used == 0 {
+            p.notes.push(format!(
+                "cell size {} m: no cell ever held --min-per-cell = {} particles; its statistics are undefined (NaN)",
+                r.grid.cell_size, p.opts.min_per_cell
+            ));
+        }
+    }
+    results
+}
+
+/// Analyses the snapshots of `run_dir` and writes the results into
+/// `run_dir/analysis/`: two passes over the snapshots, then one table per
+/// output file, the summaries, the figures and `analysis.json`.
+pub fn analyse_run(run_dir: &Path, opts: &AnalyseOptions) -> anyhow::Result<AnalysisSummary> {
+    check_options(opts)?;
+    let paths = snapshot_paths(run_dir)?;
+    let mut p = first_pass(run_dir, &paths, opts)?;
+    let (d, d_rot) = (p.d, p.d_rot);
+    let results = cell_size_results(&mut p);
+    let stats = results[0].stats.clone();
+    let grid = p.primary().clone();
+    let (mean_eps_field, mean_flux_field) = p.fields.mean();
+    let cluster_threshold = (CLUSTER_FACTOR * primary_solids_fraction(&p)[0]).max(CLUSTER_MIN);
+    let p2 = second_pass(
+        &p,
+        &paths,
+        &grid,
+        &stats,
+        &mean_eps_field,
+        cluster_threshold,
+    )?;
+
+    let out_dir = run_dir.join("analysis");
+    std::fs::create_dir_all(&out_dir).with_context(|| format!("creating {}", out_dir.display()))?;
+    let mut out = OutputFiles {
+        dir: out_dir.clone(),
+        names: Vec::new(),
+    };
+    let axes: Vec<&str> = AXIS_NAMES[..d].to_vec();
+    out.write(
+        "velocity_distribution.csv",
+        &velocity_distribution_table(&p2.hist, &axes),
+    )?;
+    out.write(
+        "speed_distribution.csv",
+        &speed_distribution_table(&p2.hist),
+    )?;
+    out.write(
+        "cell_size_dependence.csv",
+        &cell_size_table(&results, &axes),
+    )?;
+    out.write("temperature_timeseries.csv", &p.series)?;
+    let fields = cell_fields_table(&p, &grid, &mean_eps_field, &mean_flux_field, &axes);
+    out.write("cell_fields.csv", &fields)?;
+    let width = width_profiles_table(&p, &grid, &mean_eps_field, &mean_flux_field);
+    out.write("profiles_width.csv", &width)?;
+    let height = height_profile_table(&p.orient, &grid, &mean_eps_field, &mean_flux_field);
+    out.write("profile_height.csv", &height)?;
+    let pressure_drop = pressure_drop_summary(&mut p, &mut out)?;
+    let bed = (!p.bed.is_empty()).then(|| summarise(&p.bed, p.solids_volume, &p.bed_frame()));
+    if bed.is_some() {
+        out.write("bed_timeseries.csv", &bed_timeseries_table(&p.bed))?;
+    }
+    out.write("energy_budget.csv", &p.energy)?;
+    let mean_energy = p.energy_sum.scaled(1.0 / p.snapshots.max(1) as f64);
+    let energy = EnergySummary {
+        mean: mean_energy,
+        percent_of_total: mean_energy.scaled(100.0 / mean_energy.total),
+    };
+    let heterogeneity = heterogeneity_summary(&mut p, &p2, &grid, cluster_threshold);
+    let heterogeneity_by_height = heterogeneity_by_height(&p, &p2, &grid);
+    out.write(
+        "heterogeneity_by_height.csv",
+        &heterogeneity_by_height_table(&heterogeneity_by_height),
+    )?;
+    let ktgf = ktgf_summary(&mut p, &mut out, &grid)?;
+    let segregation = segregation_summary(&mut p, &mut out)?;
+    draw_figures(run_dir, &paths, p.orient.vertical, &mut out, &mut p.notes)?;
+
+    out.names.push("analysis.json".to_string());
+    let o = p.orient;
+    let total = p2.hist.total.max(1) as f64;
     let summary = AnalysisSummary {
         run_dir: run_dir.display().to_string(),
         output_dir: out_dir.display().to_string(),
@@ -1641,7 +1865,7 @@ pub fn analyse_run(run_dir: &Path, opts: &AnalyseOptions) -> anyhow::Result<Anal
             stats: u.moments.stats(d, d_rot),
         }),
         temperature_global: p.global_t[0] / (d as f64 * p.global_t[1]),
-        histogram_outside_fraction: hist.outside.map(|n| n as f64 / total),
+        histogram_outside_fraction: p2.hist.outside.map(|n| n as f64 / total),
         cell_size_dependence: results,
         heights: p.heights.clone(),
         heterogeneity,
@@ -1652,7 +1876,7 @@ pub fn analyse_run(run_dir: &Path, opts: &AnalyseOptions) -> anyhow::Result<Anal
         ktgf,
         segregation,
         notes: p.notes.clone(),
-        files,
+        files: out.names,
         figures_planned: FIGURES.to_vec(),
     };
     let json = serde_json::to_string_pretty(&summary).context("encoding analysis.json")?;
