@@ -4,7 +4,7 @@
 use glam::DVec3;
 
 use super::ctx::Ctx;
-use super::raw::{RawCoupling, RawGas, RawGasFace, RawGasModel, RawInt, RawPorosity};
+use super::raw::{RawCoupling, RawGas, RawGasFace, RawGasModel, RawInt, RawJet, RawPorosity};
 use super::{AxisBoundary, Boundaries, Domain, ScenarioError};
 use crate::gas::{
     DragLaw, GasConfig, GasFace, GasModel, Jet, PlanarPorosity, PorosityMapping, PressureSolverKind,
@@ -92,22 +92,9 @@ fn forbid<T>(ctx: &Ctx, path: &str, value: Option<T>, why: &str) -> R<()> {
     }
 }
 
-/// Resolves `[gas]` against the validated domain and particle boundaries.
-/// Long function: about 400 lines, one section per part of `[gas]` in file
-/// order (equation of state, grid, closures, initial state and solver,
-/// faces, jets, outflow), each a few independent checks; to be split per
-/// section like `validate::validate` (issue 10 follow-up).
-pub(super) fn validate_gas(
-    ctx: &Ctx,
-    raw: &RawGas,
-    domain: &Domain,
-    boundaries: &Boundaries,
-) -> R<GasConfig> {
-    let planar = domain.planar;
-    let (lo, hi) = (domain.lo, domain.hi);
-    let extent = domain.extent();
-
-    // ---- equation of state and transport
+/// `[gas]` equation of state and transport: the gas model, viscosity (Pa s)
+/// and initial pressure (Pa).
+fn equation_of_state(ctx: &Ctx, raw: &RawGas) -> R<(GasModel, f64, f64)> {
     let model = match raw.model.unwrap_or(RawGasModel::IdealGas) {
         RawGasModel::IdealGas => {
             let why = "the ideal-gas density follows from pressure, molar_mass and temperature; \
@@ -164,8 +151,11 @@ pub(super) fn validate_gas(
         1e9,
         " Pa",
     )?;
+    Ok((model, viscosity, pressure))
+}
 
-    // ---- grid
+/// `gas.cells`: cells per axis.
+fn grid_cells(ctx: &Ctx, raw: &RawGas, planar: bool, boundaries: &Boundaries) -> R<[usize; 3]> {
     if raw.cells.len() != 3 {
         return Err(ctx.err(
             "gas.cells",
@@ -203,8 +193,15 @@ pub(super) fn validate_gas(
             format!("at most {MAX_CELLS} cells in total, got {total}"),
         ));
     }
+    Ok(cells)
+}
 
-    // ---- closures
+/// Drag law, porosity mapping and planar porosity.
+fn closures(
+    ctx: &Ctx,
+    raw: &RawGas,
+    planar: bool,
+) -> R<(DragLaw, PorosityMapping, PlanarPorosity)> {
     let drag = raw.drag.unwrap_or(DragLaw::ErgunWenYu);
     let porosity = match raw.porosity.unwrap_or(RawPorosity::VolumeWeighting) {
         RawPorosity::VolumeWeighting => {
@@ -236,8 +233,21 @@ pub(super) fn validate_gas(
         )?;
     }
     let planar_porosity = raw.planar_porosity.unwrap_or(PlanarPorosity::Hoomans);
+    Ok((drag, porosity, planar_porosity))
+}
 
-    // ---- initial state and solver
+/// The initial gas velocity and the settings of the pressure solver.
+struct SolverSettings {
+    initial_velocity: DVec3,
+    pressure_solver: PressureSolverKind,
+    linear_tolerance: f64,
+    mass_tolerance: f64,
+    max_outer_iterations: usize,
+    two_way: bool,
+}
+
+/// Initial state and solver settings.
+fn solver_settings(ctx: &Ctx, raw: &RawGas, planar: bool) -> R<SolverSettings> {
     let initial_velocity = match raw.initial_velocity {
         Some(v) => ctx.vec3("gas.initial_velocity", v)?,
         None => DVec3::ZERO,
@@ -280,8 +290,19 @@ pub(super) fn validate_gas(
         None => DEFAULT_MAX_OUTER_ITERATIONS,
     };
     let two_way = raw.coupling.unwrap_or(RawCoupling::TwoWay) == RawCoupling::TwoWay;
+    Ok(SolverSettings {
+        initial_velocity,
+        pressure_solver,
+        linear_tolerance,
+        mass_tolerance,
+        max_outer_iterations,
+        two_way,
+    })
+}
 
-    // ---- faces
+/// `gas.faces`: the face conditions as `[axis][lo, hi]`, set by the
+/// particle boundaries on periodic and frozen axes.
+fn gas_faces(ctx: &Ctx, raw: &RawGas, boundaries: &Boundaries) -> R<[[GasFace; 2]; 3]> {
     let given = raw.faces.as_ref().map(|f| f.by_axis()).unwrap_or_default();
     let mut faces = [[GasFace::NoSlip; 2]; 3];
     for a in 0..3 {
@@ -328,152 +349,199 @@ pub(super) fn validate_gas(
             };
         }
     }
+    Ok(faces)
+}
 
-    // ---- jets
+/// `[[gas.jets]]`: each jet checked on its own, then against the earlier
+/// jets on its face.
+fn gas_jets(ctx: &Ctx, raw: &RawGas, domain: &Domain, faces: &[[GasFace; 2]; 3]) -> R<Vec<Jet>> {
     let mut jets: Vec<Jet> = Vec::with_capacity(raw.jets.len());
     for (i, j) in raw.jets.iter().enumerate() {
         let path = format!("gas.jets[{i}]");
-        let (axis, on_hi) = j.face.axis_side();
-        let name = FACE_NAMES[axis][on_hi as usize];
-        let face = faces[axis][on_hi as usize];
-        if planar && axis == 2 {
+        let jet = gas_jet(ctx, &path, j, domain, faces)?;
+        check_jet_overlap(ctx, path, &jet, &jets, domain.extent())?;
+        jets.push(jet);
+    }
+    Ok(jets)
+}
+
+/// One jet at `path`: its face, patch, velocity and timing.
+fn gas_jet(
+    ctx: &Ctx,
+    path: &str,
+    j: &RawJet,
+    domain: &Domain,
+    faces: &[[GasFace; 2]; 3],
+) -> R<Jet> {
+    let planar = domain.planar;
+    let (axis, on_hi) = j.face.axis_side();
+    let name = FACE_NAMES[axis][on_hi as usize];
+    let face = faces[axis][on_hi as usize];
+    if planar && axis == 2 {
+        return Err(ctx.err(
+            format!("{path}.face"),
+            format!(
+                "a jet cannot be on {name} in planar mode (the z faces are the front and back of the bed)"
+            ),
+        ));
+    }
+    match face {
+        GasFace::Periodic => {
             return Err(ctx.err(
                 format!("{path}.face"),
                 format!(
-                    "a jet cannot be on {name} in planar mode (the z faces are the front and back of the bed)"
+                    "a jet cannot be on {name}: the {} axis is periodic (boundaries.{} = \"periodic\"); a jet needs an inflow or wall face",
+                    AXES[axis], AXES[axis]
                 ),
             ));
         }
-        match face {
-            GasFace::Periodic => {
-                return Err(ctx.err(
-                    format!("{path}.face"),
-                    format!(
-                        "a jet cannot be on {name}: the {} axis is periodic (boundaries.{} = \"periodic\"); a jet needs an inflow or wall face",
-                        AXES[axis], AXES[axis]
-                    ),
-                ));
-            }
-            GasFace::Outlet => {
-                return Err(ctx.err(
-                    format!("{path}.face"),
-                    format!(
-                        "a jet cannot be on an outlet face (gas.faces.{name} = \"outlet\"); it needs an inflow or wall face"
-                    ),
-                ));
-            }
-            _ => {}
+        GasFace::Outlet => {
+            return Err(ctx.err(
+                format!("{path}.face"),
+                format!(
+                    "a jet cannot be on an outlet face (gas.faces.{name} = \"outlet\"); it needs an inflow or wall face"
+                ),
+            ));
         }
-        let centre = ctx.vec3(&format!("{path}.centre"), j.centre)?;
-        let size = ctx.vec3(&format!("{path}.size"), j.size)?;
-        let face_coordinate = if on_hi { hi[axis] } else { lo[axis] };
-        let (mut plo, mut phi) = (centre, centre);
-        plo[axis] = face_coordinate;
-        phi[axis] = face_coordinate;
-        for a in 0..3 {
-            if a == axis {
-                continue;
-            }
-            if planar && a == 2 {
-                // The patch spans the whole bed depth.
-                plo.z = lo.z;
-                phi.z = hi.z;
-                continue;
-            }
-            if !(centre[a] >= lo[a] && centre[a] <= hi[a]) {
-                return Err(ctx.err(
-                    format!("{path}.centre[{a}]"),
-                    format!(
-                        "must lie on face {name}: in [{:?}, {:?}] m ({} axis), got {:?}",
-                        lo[a], hi[a], AXES[a], centre[a]
-                    ),
-                ));
-            }
-            // Finite: checked by `vec3` above.
-            let s = size[a];
-            if s <= 0.0 {
-                return Err(ctx.err(
-                    format!("{path}.size[{a}]"),
-                    format!(
-                        "must be > 0 m (full extent of the patch along {}), got {s:?}",
-                        AXES[a]
-                    ),
-                ));
-            }
-            let (a_lo, a_hi) = (centre[a] - 0.5 * s, centre[a] + 0.5 * s);
-            let tol = PATCH_TOLERANCE * extent[a];
-            if a_lo < lo[a] - tol || a_hi > hi[a] + tol {
-                return Err(ctx.err(
-                    format!("{path}.size[{a}]"),
-                    format!(
-                        "the patch centre ± size/2 = [{a_lo:?}, {a_hi:?}] m along {} must lie within face {name}, [{:?}, {:?}] m; got size {s:?}",
-                        AXES[a], lo[a], hi[a]
-                    ),
-                ));
-            }
-            plo[a] = a_lo.max(lo[a]);
-            phi[a] = a_hi.min(hi[a]);
-        }
-        let velocity = open_closed(
-            ctx,
-            &format!("{path}.velocity"),
-            j.velocity,
-            0.0,
-            MAX_GAS_VELOCITY,
-            " m/s",
-        )?;
-        let start = ctx.non_negative(&format!("{path}.start"), j.start.unwrap_or(0.0))?;
-        let period = ctx.non_negative(&format!("{path}.period"), j.period.unwrap_or(0.0))?;
-        let on_time = match j.on_time {
-            None if period > 0.0 => {
-                return Err(ctx.err(
-                    format!("{path}.on_time"),
-                    format!("required key is missing (a pulsed jet: period = {period:?} > 0)"),
-                ));
-            }
-            None => 0.0,
-            Some(_) if period == 0.0 => {
-                return Err(ctx.err(
-                    format!("{path}.on_time"),
-                    "not allowed without a period > 0 (period = 0 is a steady jet)",
-                ));
-            }
-            Some(t) => open_closed(ctx, &format!("{path}.on_time"), t, 0.0, period, " s")?,
-        };
-        for (k, other) in jets.iter().enumerate() {
-            if other.axis != axis || other.hi != on_hi {
-                continue;
-            }
-            // Patches that merely touch (to within round-off) do not overlap.
-            let overlaps = (0..3).filter(|&a| a != axis).all(|a| {
-                phi[a].min(other.hi_corner[a]) - plo[a].max(other.lo[a])
-                    > PATCH_TOLERANCE * extent[a]
-            });
-            if overlaps {
-                return Err(ctx.err(
-                    path,
-                    format!(
-                        "overlaps gas.jets[{k}] on face {name}: patches [{}, {}] and [{}, {}] m; jets on one face must not overlap",
-                        plo, phi, other.lo, other.hi_corner
-                    ),
-                ));
-            }
-        }
-        jets.push(Jet {
-            axis,
-            hi: on_hi,
-            lo: plo,
-            hi_corner: phi,
-            given_centre: centre,
-            given_size: size,
-            velocity,
-            start,
-            period,
-            on_time,
-        });
+        _ => {}
     }
+    let (centre, size, plo, phi) = jet_patch(ctx, path, j, axis, on_hi, domain)?;
+    let velocity = open_closed(
+        ctx,
+        &format!("{path}.velocity"),
+        j.velocity,
+        0.0,
+        MAX_GAS_VELOCITY,
+        " m/s",
+    )?;
+    let start = ctx.non_negative(&format!("{path}.start"), j.start.unwrap_or(0.0))?;
+    let period = ctx.non_negative(&format!("{path}.period"), j.period.unwrap_or(0.0))?;
+    let on_time = match j.on_time {
+        None if period > 0.0 => {
+            return Err(ctx.err(
+                format!("{path}.on_time"),
+                format!("required key is missing (a pulsed jet: period = {period:?} > 0)"),
+            ));
+        }
+        None => 0.0,
+        Some(_) if period == 0.0 => {
+            return Err(ctx.err(
+                format!("{path}.on_time"),
+                "not allowed without a period > 0 (period = 0 is a steady jet)",
+            ));
+        }
+        Some(t) => open_closed(ctx, &format!("{path}.on_time"), t, 0.0, period, " s")?,
+    };
+    Ok(Jet {
+        axis,
+        hi: on_hi,
+        lo: plo,
+        hi_corner: phi,
+        given_centre: centre,
+        given_size: size,
+        velocity,
+        start,
+        period,
+        on_time,
+    })
+}
 
-    // ---- where the gas leaves
+/// The patch of the jet at `path` on face (`axis`, `on_hi`): the given
+/// centre and size, and the patch corners clamped to the face (m).
+fn jet_patch(
+    ctx: &Ctx,
+    path: &str,
+    j: &RawJet,
+    axis: usize,
+    on_hi: bool,
+    domain: &Domain,
+) -> R<(DVec3, DVec3, DVec3, DVec3)> {
+    let planar = domain.planar;
+    let (lo, hi) = (domain.lo, domain.hi);
+    let extent = domain.extent();
+    let name = FACE_NAMES[axis][on_hi as usize];
+    let centre = ctx.vec3(&format!("{path}.centre"), j.centre)?;
+    let size = ctx.vec3(&format!("{path}.size"), j.size)?;
+    let face_coordinate = if on_hi { hi[axis] } else { lo[axis] };
+    let (mut plo, mut phi) = (centre, centre);
+    plo[axis] = face_coordinate;
+    phi[axis] = face_coordinate;
+    for a in 0..3 {
+        if a == axis {
+            continue;
+        }
+        if planar && a == 2 {
+            // The patch spans the whole bed depth.
+            plo.z = lo.z;
+            phi.z = hi.z;
+            continue;
+        }
+        if !(centre[a] >= lo[a] && centre[a] <= hi[a]) {
+            return Err(ctx.err(
+                format!("{path}.centre[{a}]"),
+                format!(
+                    "must lie on face {name}: in [{:?}, {:?}] m ({} axis), got {:?}",
+                    lo[a], hi[a], AXES[a], centre[a]
+                ),
+            ));
+        }
+        // Finite: checked by `vec3` above.
+        let s = size[a];
+        if s <= 0.0 {
+            return Err(ctx.err(
+                format!("{path}.size[{a}]"),
+                format!(
+                    "must be > 0 m (full extent of the patch along {}), got {s:?}",
+                    AXES[a]
+                ),
+            ));
+        }
+        let (a_lo, a_hi) = (centre[a] - 0.5 * s, centre[a] + 0.5 * s);
+        let tol = PATCH_TOLERANCE * extent[a];
+        if a_lo < lo[a] - tol || a_hi > hi[a] + tol {
+            return Err(ctx.err(
+                format!("{path}.size[{a}]"),
+                format!(
+                    "the patch centre ± size/2 = [{a_lo:?}, {a_hi:?}] m along {} must lie within face {name}, [{:?}, {:?}] m; got size {s:?}",
+                    AXES[a], lo[a], hi[a]
+                ),
+            ));
+        }
+        plo[a] = a_lo.max(lo[a]);
+        phi[a] = a_hi.min(hi[a]);
+    }
+    Ok((centre, size, plo, phi))
+}
+
+/// `jet` must not overlap any of the earlier `jets` on its face (to within
+/// [`PATCH_TOLERANCE`] of the box `extent`).
+fn check_jet_overlap(ctx: &Ctx, path: String, jet: &Jet, jets: &[Jet], extent: DVec3) -> R<()> {
+    for (k, other) in jets.iter().enumerate() {
+        if other.axis != jet.axis || other.hi != jet.hi {
+            continue;
+        }
+        // Patches that merely touch (to within round-off) do not overlap.
+        let overlaps = (0..3).filter(|&a| a != jet.axis).all(|a| {
+            jet.hi_corner[a].min(other.hi_corner[a]) - jet.lo[a].max(other.lo[a])
+                > PATCH_TOLERANCE * extent[a]
+        });
+        if overlaps {
+            return Err(ctx.err(
+                path,
+                format!(
+                    "overlaps gas.jets[{k}] on face {}: patches [{}, {}] and [{}, {}] m; jets on one face must not overlap",
+                        FACE_NAMES[jet.axis][jet.hi as usize],
+                    jet.lo, jet.hi_corner, other.lo, other.hi_corner
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Where the gas leaves: gas that enters (an inflow face or a jet) needs an
+/// outlet face.
+fn check_outflow(ctx: &Ctx, faces: &[[GasFace; 2]; 3], jets: &[Jet]) -> R<()> {
     let any_outlet = faces.iter().flatten().any(|f| *f == GasFace::Outlet);
     let inflow = faces
         .iter()
@@ -495,6 +563,32 @@ pub(super) fn validate_gas(
             ),
         ));
     }
+    Ok(())
+}
+
+/// Resolves `[gas]` against the validated domain and particle boundaries,
+/// one function per part of `[gas]` in file order.
+pub(super) fn validate_gas(
+    ctx: &Ctx,
+    raw: &RawGas,
+    domain: &Domain,
+    boundaries: &Boundaries,
+) -> R<GasConfig> {
+    let planar = domain.planar;
+    let (model, viscosity, pressure) = equation_of_state(ctx, raw)?;
+    let cells = grid_cells(ctx, raw, planar, boundaries)?;
+    let (drag, porosity, planar_porosity) = closures(ctx, raw, planar)?;
+    let SolverSettings {
+        initial_velocity,
+        pressure_solver,
+        linear_tolerance,
+        mass_tolerance,
+        max_outer_iterations,
+        two_way,
+    } = solver_settings(ctx, raw, planar)?;
+    let faces = gas_faces(ctx, raw, boundaries)?;
+    let jets = gas_jets(ctx, raw, domain, &faces)?;
+    check_outflow(ctx, &faces, &jets)?;
 
     Ok(GasConfig {
         model,
