@@ -286,8 +286,82 @@ impl From<QueueArg> for QueueKind {
     }
 }
 
-/// Long function: one match arm per subcommand, each only turning the
-/// command line into the library's options (about 150 lines).
+impl NeighbourArg {
+    /// The neighbour search asked for; `None`: the rule of `edpm run`.
+    fn search(self) -> Option<NeighbourSearch> {
+        match self {
+            NeighbourArg::Auto => None,
+            NeighbourArg::Lists => Some(NeighbourSearch::Lists),
+            NeighbourArg::Cells => Some(NeighbourSearch::Cells),
+        }
+    }
+}
+
+impl From<StartArg> for bench::Start {
+    fn from(s: StartArg) -> Self {
+        match s {
+            StartArg::Auto => bench::Start::Auto,
+            StartArg::Lattice => bench::Start::Lattice,
+            StartArg::Compressed => bench::Start::Compressed,
+        }
+    }
+}
+
+/// `edpm sweep` without --jobs: one run per core.
+fn default_jobs() -> usize {
+    std::thread::available_parallelism().map_or(1, std::num::NonZeroUsize::get)
+}
+
+/// `edpm validate --quick` or the full catalogue.
+fn validate_mode(quick: bool) -> edpm::validate::Mode {
+    if quick {
+        edpm::validate::Mode::Quick
+    } else {
+        edpm::validate::Mode::Full
+    }
+}
+
+/// `edpm bench`: checks the options, runs the benchmark and prints its
+/// result as one JSON line (with a warning when the fluid crystallised).
+fn bench_cli(opts: &BenchOptions) -> anyhow::Result<()> {
+    let checks = [
+        (opts.n >= 4, "--n must be at least 4"),
+        (
+            opts.phi > 0.0 && opts.phi < 0.55,
+            "--phi must be in (0, 0.55): the fluid branch",
+        ),
+        (
+            opts.equilibrate >= 0.0 && opts.measure > 0.0,
+            "--equilibrate must be >= 0 and --measure > 0",
+        ),
+        (
+            opts.flow_step.is_none_or(|f| f > 0.0),
+            "--flow-step must be > 0",
+        ),
+        (
+            opts.skin > 0.0 && opts.skin <= 2.0,
+            "--skin must be in (0, 2]",
+        ),
+    ];
+    if let Some((_, msg)) = checks.iter().find(|(ok, _)| !ok) {
+        return Err(anyhow::anyhow!("{msg}"));
+    }
+    let r = bench::run(opts);
+    if r.solid_fraction > bench::CRYSTAL_WARNING_FRACTION {
+        eprintln!(
+            "edpm: warning: {:.0} % of the particles are solid-like at the end: \
+             the pressure is not the fluid's (try --start compressed)",
+            100.0 * r.solid_fraction
+        );
+    }
+    println!(
+        "{}",
+        serde_json::to_string(&r).expect("bench result serialises")
+    );
+    Ok(())
+}
+
+/// Turns each subcommand's arguments into the library's options and runs it.
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
@@ -331,9 +405,7 @@ fn main() -> ExitCode {
                 sets,
                 out,
                 t_end,
-                jobs: jobs.unwrap_or_else(|| {
-                    std::thread::available_parallelism().map_or(1, std::num::NonZeroUsize::get)
-                }),
+                jobs: jobs.unwrap_or_else(default_jobs),
                 columns,
                 average_after,
                 force,
@@ -383,11 +455,7 @@ fn main() -> ExitCode {
             tolerance_scale,
         } => edpm::validate::validate_cli(&edpm::validate::ValidateOptions {
             cases,
-            mode: if quick {
-                edpm::validate::Mode::Quick
-            } else {
-                edpm::validate::Mode::Full
-            },
+            mode: validate_mode(quick),
             out,
             list,
             tolerance_scale,
@@ -410,60 +478,19 @@ fn main() -> ExitCode {
             start,
             reorder_every,
             seed,
-        } => {
-            let checks = [
-                (n >= 4, "--n must be at least 4"),
-                (
-                    phi > 0.0 && phi < 0.55,
-                    "--phi must be in (0, 0.55): the fluid branch",
-                ),
-                (
-                    equilibrate >= 0.0 && measure > 0.0,
-                    "--equilibrate must be >= 0 and --measure > 0",
-                ),
-                (flow_step.is_none_or(|f| f > 0.0), "--flow-step must be > 0"),
-                (skin > 0.0 && skin <= 2.0, "--skin must be in (0, 2]"),
-            ];
-            match checks.iter().find(|(ok, _)| !ok) {
-                Some((_, msg)) => Err(anyhow::anyhow!("{msg}")),
-                None => {
-                    let opts = BenchOptions {
-                        n,
-                        phi,
-                        equilibrate,
-                        measure,
-                        flow_step,
-                        skin,
-                        queue: queue.into(),
-                        neighbours: match neighbours {
-                            NeighbourArg::Auto => None,
-                            NeighbourArg::Lists => Some(NeighbourSearch::Lists),
-                            NeighbourArg::Cells => Some(NeighbourSearch::Cells),
-                        },
-                        start: match start {
-                            StartArg::Auto => bench::Start::Auto,
-                            StartArg::Lattice => bench::Start::Lattice,
-                            StartArg::Compressed => bench::Start::Compressed,
-                        },
-                        reorder_every,
-                        seed,
-                    };
-                    let r = bench::run(&opts);
-                    if r.solid_fraction > bench::CRYSTAL_WARNING_FRACTION {
-                        eprintln!(
-                            "edpm: warning: {:.0} % of the particles are solid-like at the end: \
-                             the pressure is not the fluid's (try --start compressed)",
-                            100.0 * r.solid_fraction
-                        );
-                    }
-                    println!(
-                        "{}",
-                        serde_json::to_string(&r).expect("bench result serialises")
-                    );
-                    Ok(())
-                }
-            }
-        }
+        } => bench_cli(&BenchOptions {
+            n,
+            phi,
+            equilibrate,
+            measure,
+            flow_step,
+            skin,
+            queue: queue.into(),
+            neighbours: neighbours.search(),
+            start: start.into(),
+            reorder_every,
+            seed,
+        }),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
