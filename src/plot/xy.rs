@@ -279,9 +279,39 @@ pub(super) fn plot_xy(path: &Path, fig: &XyFigure, layers: &[Layer]) -> anyhow::
     render_png(path, layout.size, |buf| draw_xy(buf, fig, &layout, layers))
 }
 
-/// Long function: one figure drawn in painter's order (geometry per layer,
-/// axes and ticks, series, legend, frame), about 160 lines; not split in
-/// the issue-10 refactor.
+/// Drawable geometry per layer: its polylines in axis space, clipped to the
+/// axes (lines) or with the points outside left out (markers only).
+fn layer_geometry(
+    fig: &XyFigure,
+    layers: &[Layer],
+    x_axis: &Axis,
+    y_axis: &Axis,
+) -> Vec<Vec<Vec<(f64, f64)>>> {
+    layers
+        .iter()
+        .map(|l| {
+            polylines(&l.points, fig.log_x, fig.log_y)
+                .iter()
+                .flat_map(|pl| {
+                    if l.line.is_some() {
+                        clip_polyline(pl, x_axis, y_axis)
+                    } else {
+                        vec![
+                            pl.iter()
+                                .copied()
+                                .filter(|p| x_axis.contains(p.0) && y_axis.contains(p.1))
+                                .collect(),
+                        ]
+                    }
+                })
+                .filter(|pl| !pl.is_empty())
+                .collect()
+        })
+        .collect()
+}
+
+/// Draws one figure in painter's order: title, axes and ticks, series,
+/// legend, the "no data" note, frame.
 pub(super) fn draw_xy(
     buf: &mut [u8],
     fig: &XyFigure,
@@ -323,28 +353,7 @@ pub(super) fn draw_xy(
         .set_all_tick_mark_size(TICK)
         .draw()?;
 
-    // Drawable geometry per layer.
-    let lines: Vec<Vec<Vec<(f64, f64)>>> = layers
-        .iter()
-        .map(|l| {
-            polylines(&l.points, fig.log_x, fig.log_y)
-                .iter()
-                .flat_map(|pl| {
-                    if l.line.is_some() {
-                        clip_polyline(pl, x_axis, y_axis)
-                    } else {
-                        vec![
-                            pl.iter()
-                                .copied()
-                                .filter(|p| x_axis.contains(p.0) && y_axis.contains(p.1))
-                                .collect(),
-                        ]
-                    }
-                })
-                .filter(|pl| !pl.is_empty())
-                .collect()
-        })
-        .collect();
+    let lines = layer_geometry(fig, layers, x_axis, y_axis);
     let any_data = lines
         .iter()
         .zip(layers)
