@@ -48,6 +48,11 @@ enum Command {
         /// (default: 10 per run).
         #[arg(long, value_name = "STEPS")]
         log_checkpoint_steps: Option<u64>,
+        /// Continue from a restart file (restart.bin of an earlier run of
+        /// the same scenario, [output] restart_interval) to t_end, bit for
+        /// bit as the uninterrupted run (docs/data-files.md).
+        #[arg(long, value_name = "FILE")]
+        restart: Option<PathBuf>,
         /// Run into an output directory that holds an earlier run's
         /// outputs: edpm's own files there (summary, time series,
         /// snapshots, VTK, final state, analysis) are deleted first.
@@ -374,6 +379,7 @@ fn main() -> ExitCode {
             progress_interval,
             log,
             log_checkpoint_steps,
+            restart,
             force,
         } => {
             let opts = edpm::run::RunOptions {
@@ -381,6 +387,7 @@ fn main() -> ExitCode {
                 progress_interval,
                 log,
                 log_checkpoint_steps,
+                restart,
                 force,
             };
             edpm::run::run_cli(&scenario, out.as_deref(), t_end, &overrides, &opts)

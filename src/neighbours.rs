@@ -110,7 +110,7 @@ impl NeighbourLists {
 
 /// One particle's shell as stored in its cell: centre, radius `R + δ`
 /// and slot, contiguous so that a neighbour search scans memory linearly.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 #[repr(C)]
 pub struct CellEntry {
     pub centre: DVec3,
@@ -261,6 +261,43 @@ impl CellGrid {
             position: vec![(NONE, 0); slots],
             ..self.clone()
         }
+    }
+
+    /// Every entry, cell by cell (flat cell index), each cell's entries in
+    /// their order: what a restart file keeps ([`CellGrid::refilled`]).
+    pub fn occupied(&self) -> Vec<(u32, CellEntry)> {
+        let mut out = Vec::new();
+        for (cell, &n) in self.len.iter().enumerate() {
+            for k in 0..n as usize {
+                let e = if k < self.stride {
+                    self.entries[cell * self.stride + k]
+                } else {
+                    self.overflow[&(cell as u32)][k - self.stride]
+                };
+                out.push((cell as u32, e));
+            }
+        }
+        out
+    }
+
+    /// The same grid for `slots` slots holding exactly `occupied`
+    /// ([`CellGrid::occupied`]), each cell's entries in the same order.
+    pub fn refilled(&self, slots: usize, occupied: &[(u32, CellEntry)]) -> CellGrid {
+        let mut g = self.emptied(slots);
+        let d = g.cells;
+        for &(cell, e) in occupied {
+            let c = cell as usize;
+            let coords = [c % d[0], (c / d[0]) % d[1], c / (d[0] * d[1])];
+            // `place_in` stores the reach rounded up to f32: its f32
+            // predecessor rounds up to the stored value itself.
+            g.place_in(
+                e.index as usize,
+                coords,
+                e.centre,
+                f64::from(e.reach.next_down()),
+            );
+        }
+        g
     }
 
     /// Cells per axis.

@@ -22,6 +22,7 @@ mod hybrid;
 mod neighbour_search;
 mod records;
 mod soft_stepper;
+mod state;
 mod store;
 
 pub use dynamics::ParticleDynamics;
@@ -30,6 +31,7 @@ pub use records::{
     StallReport, State,
 };
 pub use soft_stepper::SoftStats;
+pub use state::{EngineState, SlotState};
 pub use store::ParticleView;
 
 use soft_stepper::{SOFT_START_OVERLAP, SoftStepper};

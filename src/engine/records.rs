@@ -102,7 +102,7 @@ pub enum Record {
 }
 
 /// A particle that exceeded the per-step collision limit.
-#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct CollapseReport {
     /// Absolute time of the flow step's end (s).
     pub time: f64,
@@ -112,7 +112,7 @@ pub struct CollapseReport {
 }
 
 /// Running totals since construction.
-#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Counters {
     pub pair_collisions: u64,
     pub wall_collisions: u64,

@@ -41,7 +41,7 @@ pub(super) const SOFT_START_OVERLAP: f64 = 0.05;
 const WALL_KEY: u64 = u64::MAX - 8;
 
 /// What the soft steps did (totals since construction).
-#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct SoftStats {
     /// Soft time steps taken.
     pub steps: u64,

@@ -13,6 +13,9 @@ use super::solver::{GasError, GasPhase};
 use crate::domain::grid::GridGeometry;
 use crate::engine::ParticleDynamics;
 
+mod state;
+pub use state::GasRunState;
+
 /// What a gas run is built from: the resolved `[gas]` configuration, the
 /// grid over the box and gravity (m/s²).
 pub struct GasSetup {
@@ -39,7 +42,7 @@ pub struct GasRun {
 }
 
 /// Totals over a run, for `summary.json`.
-#[derive(Clone, Copy, Debug, Default, serde::Serialize)]
+#[derive(Clone, Copy, Debug, Default, serde::Serialize, serde::Deserialize)]
 pub struct GasTotals {
     pub steps: u64,
     pub outer_iterations: u64,
@@ -61,7 +64,7 @@ pub struct GasTotals {
     pub solver_cpu_seconds: f64,
 }
 
-#[derive(Clone, Copy, Debug, Default)]
+#[derive(Clone, Copy, Debug, Default, serde::Serialize, serde::Deserialize)]
 struct IntervalStats {
     steps: u64,
     outer: u64,

@@ -32,6 +32,9 @@ use super::config::{GasConfig, GasFace, PressureSolverKind};
 use super::linear::{BandedCholesky, Pcg, PressureSolver, SolveError, StencilMatrix};
 use crate::domain::grid::GridGeometry;
 
+mod state;
+pub use state::GasPhaseState;
+
 /// How the velocity on a face is determined.
 #[derive(Clone, Copy, Debug, PartialEq)]
 enum FaceRole {

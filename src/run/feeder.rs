@@ -93,3 +93,32 @@ impl InletFeeder {
         ((self.owed_mass / mean_mass.max(f64::MIN_POSITIVE)).floor() as usize).max(1)
     }
 }
+
+/// What an inlet feeder carries from one flow step to the next, for restart
+/// files: the mass owed (kg), whether the last attempt found no room, the
+/// particle drawn but not yet inserted, and its random stream.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct FeederState {
+    owed_mass: f64,
+    blocked: bool,
+    next: Option<NewParticle>,
+    rng: Xoshiro256PlusPlus,
+}
+
+impl InletFeeder {
+    pub(super) fn export_state(&self) -> FeederState {
+        FeederState {
+            owed_mass: self.owed_mass,
+            blocked: self.blocked,
+            next: self.next,
+            rng: self.rng.clone(),
+        }
+    }
+
+    pub(super) fn import_state(&mut self, state: FeederState) {
+        self.owed_mass = state.owed_mass;
+        self.blocked = state.blocked;
+        self.next = state.next;
+        self.rng = state.rng;
+    }
+}

@@ -17,6 +17,7 @@ mod diagnose;
 mod feeder;
 pub mod outdir;
 pub mod recorders;
+pub mod restart;
 pub mod skipped;
 
 use std::path::{Path, PathBuf};
@@ -236,6 +237,9 @@ pub struct RunOptions {
     /// Full-state checkpoints in the log every this many flow steps
     /// (default: 10 per run); a final one is always written.
     pub log_checkpoint_steps: Option<u64>,
+    /// Continue from this restart file (`restart.bin` of an earlier run of
+    /// the same scenario) to `t_end`.
+    pub restart: Option<PathBuf>,
     /// `edpm run` only: run into an output directory holding an earlier
     /// run's outputs (they are deleted first; [`outdir`]). Without it
     /// [`run_cli`] refuses such a directory; the library functions always
@@ -307,6 +311,8 @@ struct FlowLoop<'a, Q: EventQueue> {
     gas: Option<GasRun>,
     feeder: Option<InletFeeder>,
     recorders: Vec<Box<dyn Recorder<Q>>>,
+    /// Writes `restart.bin` every `[output] restart_interval`.
+    restarts: Option<restart::RestartWriter>,
     /// Anything that acts at flow steps: forces (kicks) or inlet feeding.
     forces: bool,
 }
@@ -375,7 +381,11 @@ impl<Q: EventQueue> FlowLoop<'_, Q> {
         let asked = self
             .recorders
             .iter()
-            .fold(false, |any, r| r.needs_sync(&end) | any);
+            .fold(false, |any, r| r.needs_sync(&end) | any)
+            || self
+                .restarts
+                .as_ref()
+                .is_some_and(|w| w.due(end.time, last));
         // Without forces nothing changes at a flow step: synchronise only
         // where results are taken (re-predicting everyone costs ~N events).
         if self.forces || last || asked {
@@ -400,6 +410,10 @@ impl<Q: EventQueue> FlowLoop<'_, Q> {
         }
         for r in self.recorders.iter_mut() {
             r.end_step(&mut self.engine, self.gas.as_mut(), &end)?;
+        }
+        if let Some(w) = self.restarts.as_mut() {
+            let (gas, feeder) = (self.gas.as_ref(), self.feeder.as_ref());
+            w.end_step(&self.engine, gas, feeder, end.step, end.time, last)?;
         }
         Ok(())
     }
@@ -436,14 +450,24 @@ fn simulate<Q: EventQueue>(
         let inputs: Vec<&Path> = s.initial.checkpoint.iter().map(PathBuf::as_path).collect();
         outdir::check_log_path(log, out_dir, &inputs)?;
     }
-    std::fs::create_dir_all(out_dir).with_context(|| format!("creating {}", out_dir.display()))?;
-    outdir::clear_outputs(out_dir)?;
     let resolved = crate::scenario::resolved_toml(s);
     let initial: Vec<_> = engine
         .particles()
         .map(crate::particles::NewParticle::from)
         .collect();
     let run_id = outdir::run_id(&resolved, &initial);
+    let fingerprint = restart::scenario_fingerprint(s, &initial);
+    let mut feeder = InletFeeder::new(s);
+    // Restarted: the run id stays that of the run from the initial state.
+    let mut first_step = 0;
+    if let Some(path) = &opts.restart {
+        outdir::check_restart_path(path, out_dir, opts.log.as_deref())?;
+        let file = restart::read(path, s, fingerprint)?;
+        first_step = file.step;
+        restart::restore(path, file, &mut engine, gas.as_mut(), feeder.as_mut())?;
+    }
+    std::fs::create_dir_all(out_dir).with_context(|| format!("creating {}", out_dir.display()))?;
+    outdir::clear_outputs(out_dir)?;
     outdir::write_manifest(
         out_dir,
         &outdir::manifest(run_id, &s.name, opts.log.as_deref()),
@@ -464,7 +488,9 @@ fn simulate<Q: EventQueue>(
         r.start(&mut engine, gas.as_mut())?;
     }
     let particles_initial = engine.len();
-    let feeder = InletFeeder::new(s);
+    let restarts = s.output.restart_interval.map(|interval| {
+        restart::RestartWriter::new(out_dir, interval, engine.time(), run_id, fingerprint)
+    });
     let forces = s.domain.gravity != DVec3::ZERO || feeder.is_some() || gas.is_some();
     let mut run = FlowLoop {
         s,
@@ -472,10 +498,11 @@ fn simulate<Q: EventQueue>(
         gas,
         feeder,
         recorders,
+        restarts,
         forces,
     };
-    let outcome =
-        (0..plan.steps).try_for_each(|step| run.step(step, plan.dt(step), step + 1 == plan.steps));
+    let outcome = (first_step..plan.steps)
+        .try_for_each(|step| run.step(step, plan.dt(step), step + 1 == plan.steps));
     let mut end = RunEnd {
         completed: outcome.is_ok(),
         log_bytes: None,

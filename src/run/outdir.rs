@@ -23,7 +23,7 @@ use crate::io::snapshot::run_id_text;
 use crate::particles::NewParticle;
 
 /// Files a run writes in its output directory.
-pub const OWN_FILES: [&str; 11] = [
+pub const OWN_FILES: [&str; 12] = [
     "run.json",
     "scenario.toml",
     "resolved.toml",
@@ -35,6 +35,7 @@ pub const OWN_FILES: [&str; 11] = [
     "particles.pvd",
     "gas.pvd",
     "particles.png",
+    "restart.bin",
 ];
 
 /// Directories of a run's (and `edpm analyse`'s) outputs, with the file
@@ -233,6 +234,41 @@ pub fn check_log_path(log: &Path, out_dir: &Path, inputs: &[&Path]) -> anyhow::R
                 out_dir.join(dir).display()
             );
         }
+    }
+    Ok(())
+}
+
+/// Refuses a restart file that the run would delete before reading it
+/// (an output of a run in `out_dir`), and `--log` with `--restart` (a log
+/// starts from the initial state).
+pub fn check_restart_path(
+    restart: &Path,
+    out_dir: &Path,
+    log: Option<&Path>,
+) -> anyhow::Result<()> {
+    if log.is_some() {
+        anyhow::bail!(
+            "--restart {}: event logs (--log) start from the initial state; a restarted run cannot write one",
+            restart.display()
+        );
+    }
+    let abs = resolve(restart);
+    let inside = abs.parent() == Some(resolve(out_dir).as_path())
+        && abs
+            .file_name()
+            .and_then(|n| n.to_str())
+            .is_some_and(|n| OWN_FILES.contains(&n));
+    if inside
+        || OWN_DIRS
+            .iter()
+            .any(|(d, _)| abs.starts_with(resolve(out_dir).join(d)))
+    {
+        anyhow::bail!(
+            "--restart {}: lies among the outputs of {}, which the run deletes when it starts; \
+             copy it elsewhere or give another --out",
+            restart.display(),
+            out_dir.display()
+        );
     }
     Ok(())
 }

@@ -405,6 +405,10 @@ pub struct OutputSettings {
     /// Interval between particle snapshots for `edpm analyse` (s), clamped
     /// to `t_end`; `None`: no snapshots.
     pub snapshot_interval: Option<f64>,
+    /// Interval between restart files (s), at least one flow step; `None`:
+    /// no restart files. Each replaces `restart.bin` atomically
+    /// (docs/data-files.md).
+    pub restart_interval: Option<f64>,
     /// Cells of the collision tally per axis when there is no gas grid
     /// (default one cell per axis).
     pub tally_cells: Option<[usize; 3]>,

@@ -188,6 +188,7 @@ pub(super) struct RawOutput {
     pub sample_interval: Option<f64>,
     pub vtk_interval: Option<f64>,
     pub snapshot_interval: Option<f64>,
+    pub restart_interval: Option<f64>,
     pub tally_cells: Option<[RawInt; 3]>,
     pub picture_frames: Option<RawInt>,
 }

@@ -231,6 +231,10 @@ fn write_output(w: &mut Writer, s: &Scenario) {
         Some(v) => w.key("snapshot_interval", float(v), "s"),
         None => w.comment("snapshot_interval: none (no analysis snapshots)"),
     }
+    match o.restart_interval {
+        Some(v) => w.key("restart_interval", float(v), "s"),
+        None => w.comment("restart_interval: none (no restart files)"),
+    }
     w.key(
         "picture_frames",
         o.picture_frames.to_string(),

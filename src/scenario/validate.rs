@@ -1047,6 +1047,7 @@ fn validate_output(
         ),
         None => (None, None, None, None, None),
     };
+    let restart_interval = raw.and_then(|o| o.restart_interval);
     // Samples and snapshots are taken at the ends of flow steps: intervals
     // are at least one flow step, and their number is bounded.
     let interval = |path: &str, v: f64, max_count: f64| -> R<f64> {
@@ -1076,6 +1077,9 @@ fn validate_output(
         .transpose()?;
     let snapshot_interval = snapshot_interval
         .map(|v| interval("output.snapshot_interval", v, limits::MAX_SNAPSHOTS))
+        .transpose()?;
+    let restart_interval = restart_interval
+        .map(|v| interval("output.restart_interval", v, limits::MAX_SNAPSHOTS))
         .transpose()?;
     let tally_cells = match tally_cells {
         Some(cells) => {
@@ -1118,6 +1122,7 @@ fn validate_output(
         sample_interval,
         vtk_interval,
         snapshot_interval,
+        restart_interval,
         tally_cells,
         picture_frames,
     })

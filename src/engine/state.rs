@@ -1,0 +1,239 @@
+//! Export and import of the engine's whole state between flow steps, for
+//! restart files (`[output] restart_interval`, `edpm run --restart`).
+//!
+//! A restarted run must continue bit for bit as the run that wrote the
+//! file, so everything the next flow steps read is exported exactly: the
+//! particle arrays in slot order (free slots included), neighbour shells
+//! and lists, the cell grid with each cell's entries in their order (list
+//! rebuilds scan it), the last collision partners and times (TC model),
+//! the random stream, the clock with its round-off carry, the particles
+//! waiting to be re-inserted and the counters. The event queue is not: at
+//! a flow-step boundary every prediction is redone (`predict_all`), and
+//! the queue's order is total (time, then slot), so its contents follow
+//! from the rest.
+
+use glam::DVec3;
+use rand_xoshiro::Xoshiro256PlusPlus;
+use serde::{Deserialize, Serialize};
+
+use super::store::{Kinematics, SHELL_EXIT, Shell};
+use super::{CollapseReport, ContactModel, Counters, Engine, SoftStats};
+use crate::neighbours::{CellEntry, NeighbourLists};
+use crate::particles::NewParticle;
+use crate::queue::EventQueue;
+
+/// One slot's particle data: position (m), velocity (m/s), angular
+/// velocity (rad/s), radius (m), inverse mass (1/kg), material, id,
+/// whether the slot holds a particle, its event counter.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SlotState {
+    pub pos: DVec3,
+    pub vel: DVec3,
+    pub omega: DVec3,
+    pub radius: f64,
+    pub inv_mass: f64,
+    pub material: u16,
+    pub id: u64,
+    pub active: bool,
+    pub counter: u32,
+    /// Neighbour shell: centre (m) and reach `R + δ` (m).
+    pub shell_centre: DVec3,
+    pub shell_reach: f64,
+    /// Domain faces the shell or cell reaches (bit per face).
+    pub face_mask: u8,
+    /// Cells mode: the cell the particle is in.
+    pub cell: [u64; 3],
+    /// Engine clock of the last collision (s; −∞: none).
+    pub last_collision: f64,
+    /// Slot of the last collision partner (`u32::MAX`: none or a wall).
+    pub last_partner: u32,
+}
+
+/// The engine's state at a flow-step boundary (clock 0), everything that
+/// the following flow steps depend on.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct EngineState {
+    pub slots: Vec<SlotState>,
+    pub free_slots: Vec<u32>,
+    pub next_id: u64,
+    /// Neighbour list of each slot (packed entries), in order.
+    pub lists: Vec<Vec<u32>>,
+    /// The cell grid's entries: flat cell index and entry, cell by cell.
+    pub cells: Vec<(u32, CellEntry)>,
+    pub rng: Xoshiro256PlusPlus,
+    /// Absolute time of clock 0 (s) and its Neumaier round-off carry (s).
+    pub time_origin: f64,
+    pub time_origin_error: f64,
+    pub pending_reinsert: Vec<NewParticle>,
+    pub counters: Counters,
+    pub collapse_reports: Vec<CollapseReport>,
+    pub soft_stats: SoftStats,
+}
+
+impl EngineState {
+    /// Particles in the state (active slots).
+    pub fn particles(&self) -> usize {
+        self.slots.iter().filter(|s| s.active).count()
+    }
+}
+
+impl<Q: EventQueue> Engine<Q> {
+    /// The state between flow steps, for a restart file. Only for hard
+    /// spheres, right after [`Engine::end_flow_step`] (clock 0, every
+    /// particle synchronised); `Err` with the reason otherwise.
+    pub fn export_state(&self) -> Result<EngineState, String> {
+        if self.config.model != ContactModel::Hard {
+            return Err(format!(
+                "restart files of {:?} runs are not supported: the soft contacts' history is not exported",
+                self.config.model
+            )
+            .to_lowercase());
+        }
+        if self.now != 0.0 || !self.needs_prediction {
+            return Err("the engine state is exported only between flow steps".into());
+        }
+        let slots = (0..self.kin.len())
+            .map(|i| SlotState {
+                pos: self.kin[i].pos,
+                vel: self.kin[i].vel,
+                omega: self.omega[i],
+                radius: self.kin[i].radius,
+                inv_mass: self.inv_mass[i],
+                material: self.material[i],
+                id: self.id[i],
+                active: self.active[i],
+                counter: self.counter[i],
+                shell_centre: self.shells[i].centre,
+                shell_reach: self.shells[i].reach,
+                face_mask: self.face_mask[i],
+                cell: self.cell_of[i].map(|c| c as u64),
+                last_collision: self.last_collision[i],
+                last_partner: self.last_partner[i],
+            })
+            .collect();
+        Ok(EngineState {
+            slots,
+            free_slots: self.free_slots.clone(),
+            next_id: self.next_id,
+            lists: (0..self.kin.len())
+                .map(|i| self.lists.list(i).to_vec())
+                .collect(),
+            cells: self.cells.occupied(),
+            rng: self.rng.clone(),
+            time_origin: self.time_origin,
+            time_origin_error: self.time_origin_error,
+            pending_reinsert: self.pending_reinsert.clone(),
+            counters: self.counters,
+            collapse_reports: self.collapse_reports.clone(),
+            soft_stats: self.soft_stats,
+        })
+    }
+
+    /// Replaces the state of an engine built from the same scenario with
+    /// `state` ([`Engine::export_state`]); the configuration, domain and
+    /// materials stay those of the build. `Err` with the reason when the
+    /// state cannot belong to this engine.
+    pub fn import_state(&mut self, state: EngineState) -> Result<(), String> {
+        if self.config.model != ContactModel::Hard {
+            return Err(format!(
+                "restarts of {:?} runs are not supported: the soft contacts' history is not exported",
+                self.config.model
+            )
+            .to_lowercase());
+        }
+        let n = state.slots.len();
+        let dims = self.cells.dims();
+        let cells = (dims[0] * dims[1] * dims[2]) as u64;
+        if state.lists.len() != n
+            || state
+                .lists
+                .iter()
+                .flatten()
+                .any(|&e| crate::neighbours::unpack(e).0 as usize >= n)
+            || state
+                .cells
+                .iter()
+                .any(|(c, e)| u64::from(*c) >= cells || e.index as usize >= n)
+        {
+            return Err("neighbour lists or cells that do not fit the particle table or this scenario's grid".into());
+        }
+        if state.free_slots.iter().any(|&f| f as usize >= n)
+            || state
+                .slots
+                .iter()
+                .any(|s| s.last_partner != super::NO_PARTNER && s.last_partner as usize >= n)
+        {
+            return Err("slot numbers beyond the particle table".into());
+        }
+        for (i, s) in state.slots.iter().enumerate().filter(|(_, s)| s.active) {
+            if s.radius > self.r_max || !(s.radius > 0.0) {
+                return Err(format!(
+                    "particle {} has radius {} m, outside (0, {}] m of this scenario's grid",
+                    s.id, s.radius, self.r_max
+                ));
+            }
+            if !(s.pos.is_finite() && s.vel.is_finite() && s.omega.is_finite()) {
+                return Err(format!("slot {i}: position or velocity not finite"));
+            }
+        }
+        self.kin = state
+            .slots
+            .iter()
+            .map(|s| Kinematics {
+                pos: s.pos,
+                time: 0.0,
+                vel: s.vel,
+                radius: s.radius,
+            })
+            .collect();
+        self.omega = state.slots.iter().map(|s| s.omega).collect();
+        self.inv_mass = state.slots.iter().map(|s| s.inv_mass).collect();
+        self.material = state.slots.iter().map(|s| s.material).collect();
+        self.id = state.slots.iter().map(|s| s.id).collect();
+        self.active = state.slots.iter().map(|s| s.active).collect();
+        self.counter = state.slots.iter().map(|s| s.counter).collect();
+        self.scheduled = vec![SHELL_EXIT; n];
+        self.shells = state
+            .slots
+            .iter()
+            .map(|s| Shell {
+                centre: s.shell_centre,
+                reach: s.shell_reach,
+            })
+            .collect();
+        self.face_mask = state.slots.iter().map(|s| s.face_mask).collect();
+        self.cell_of = state
+            .slots
+            .iter()
+            .map(|s| s.cell.map(|c| c as usize))
+            .collect();
+        self.last_collision = state.slots.iter().map(|s| s.last_collision).collect();
+        self.last_partner = state.slots.iter().map(|s| s.last_partner).collect();
+        self.step_collisions = vec![0; n];
+        self.is_soft = vec![false; n];
+        self.turned_soft.clear();
+        self.free_slots = state.free_slots;
+        self.next_id = state.next_id;
+        let mut lists = NeighbourLists::new(n, self.lists.stride());
+        for (i, list) in state.lists.iter().enumerate() {
+            for &entry in list {
+                lists.push(i, entry);
+            }
+        }
+        self.lists = lists;
+        self.cells = self.cells.refilled(n, &state.cells);
+        self.queue = Q::with_capacity(n);
+        self.rng = state.rng;
+        self.now = 0.0;
+        self.time_origin = state.time_origin;
+        self.time_origin_error = state.time_origin_error;
+        self.needs_prediction = true;
+        self.pending_reinsert = state.pending_reinsert;
+        self.counters = state.counters;
+        self.records.clear();
+        self.collapse_reports = state.collapse_reports;
+        self.stall = None;
+        self.soft_stats = state.soft_stats;
+        Ok(())
+    }
+}
