@@ -1,11 +1,11 @@
 #!/usr/bin/env python3
 """Reader for edpm's binary data files (docs/data-files.md): analysis
-snapshots (`RUN_DIR/snapshots/NNNNNN.bin`, format version 3) and
-checkpoints (`final_state.bin`, format version 2). Python standard library
-only (struct, zlib).
+snapshots (`RUN_DIR/snapshots/NNNNNN.bin`, format version 3), checkpoints
+(`final_state.bin`, format version 2) and restart files (`restart.bin`,
+format version 1). Python standard library only (struct, zlib).
 
     import sys; sys.path.insert(0, "tools")
-    from edpm_data import read_snapshot, read_checkpoint, read_snapshots
+    from edpm_data import read_snapshot, read_checkpoint, read_snapshots, read_restart
 
     snap = read_snapshot("out/hcs-3d/snapshots/000004.bin")
     snap["time"], snap["run_id"], snap["lo"], snap["hi"]
@@ -16,6 +16,12 @@ only (struct, zlib).
 
     for snap in read_snapshots("out/hcs-3d"):   # one run, in time order
         ...
+
+    r = read_restart("out/riser-nonideal/restart.bin")
+    r["time"], r["step"]             # absolute time (s), flow steps completed
+    r["particles"]                   # id, material, radius, mass, pos, vel, omega
+    r["gas"]                         # None, or cells, time, gas_fraction, pressure,
+                                     # density, velocity (one list of face values per axis)
 
 Tables are dicts from column name to a list (one entry per particle or
 cell); 3-vectors are tuples. Every file's checksums are verified: a damaged
@@ -39,7 +45,8 @@ CHUNK_BYTES = 4096
 # kind: (magic, name in messages, version read, last version without the container)
 SNAPSHOT = (b"EDPMSNAP", "snapshot", 3, 2)
 CHECKPOINT = (b"EDPMCKPT", "checkpoint", 2, 1)
-KINDS = {SNAPSHOT[0]: SNAPSHOT, CHECKPOINT[0]: CHECKPOINT}
+RESTART = (b"EDPMRST\0", "restart file", 1, 0)
+KINDS = {SNAPSHOT[0]: SNAPSHOT, CHECKPOINT[0]: CHECKPOINT, RESTART[0]: RESTART}
 
 
 class DataFileError(ValueError):
@@ -233,6 +240,47 @@ def read_checkpoint(path):
     return cp
 
 
+# One engine slot of a restart file: pos, vel, omega, radius, inverse mass,
+# material, id, active, event counter, shell centre and reach, face mask,
+# cell, last collision time, last partner slot.
+RESTART_SLOT = struct.Struct("<3d3d3dddHQ?I3ddB3QdI")
+GAS_CELL_FIELDS = ["gas_fraction", "gas_fraction_old", "pressure", "density", "density_old"]
+GAS_FACE_FIELDS = ["velocity", "drag_beta", "drag_alpha", "pressure_share", "eps_face_old",
+                   "explicit", "coefficient", "mass_flux"]
+
+
+def read_restart(path):
+    """Reads a restart file's time, particles and gas fields (docs/data-files.md).
+
+    The engine's internals that follow (neighbour lists, cells, random
+    streams, counters) are checked by the checksums but not decoded."""
+    header, c = _read(path, RESTART)
+    r = {"run_id": header["run_id"], "version": header["version"],
+         "scenario": f"{c.one('Q'):016x}", "time": c.one("d"), "step": c.one("Q")}
+    n = c.count(RESTART_SLOT.size)
+    cols = {k: [] for k in ("id", "material", "radius", "mass", "pos", "vel", "omega")}
+    for row in RESTART_SLOT.iter_unpack(c.take(n * RESTART_SLOT.size)):
+        if not row[13]:  # a free slot
+            continue
+        cols["pos"].append(row[0:3])
+        cols["vel"].append(row[3:6])
+        cols["omega"].append(row[6:9])
+        cols["radius"].append(row[9])
+        cols["mass"].append(1.0 / row[10])
+        cols["material"].append(row[11])
+        cols["id"].append(row[12])
+    r["particles"] = cols
+    r["gas"] = None
+    if c.flag():
+        gas = {"cells": c.unpack("3Q"), "time": c.one("d")}
+        for name in GAS_CELL_FIELDS:
+            gas[name] = c.floats()
+        for name in GAS_FACE_FIELDS:
+            gas[name] = [c.floats() for _ in range(3)]
+        r["gas"] = gas
+    return r
+
+
 def read_snapshots(run_dir):
     """Every snapshot of a run directory, in time order; refuses a mix of runs."""
     d = os.path.join(run_dir, "snapshots")
@@ -247,11 +295,12 @@ def read_snapshots(run_dir):
 
 
 def read_file(path):
-    """A snapshot or a checkpoint, by its magic; adds "kind" to the dict."""
+    """A snapshot, checkpoint or restart file, by its magic; adds "kind" to the dict."""
     with open(path, "rb") as f:
         magic = f.read(8)
     kind = KINDS.get(magic, SNAPSHOT)
-    out = read_snapshot(path) if kind is SNAPSHOT else read_checkpoint(path)
+    reader = {SNAPSHOT: read_snapshot, CHECKPOINT: read_checkpoint, RESTART: read_restart}
+    out = reader[kind](path)
     out["kind"] = kind[1]
     return out
 
@@ -267,8 +316,12 @@ def summary(d):
     out = {"kind": d["kind"], "version": d["version"], "run_id": d["run_id"],
            "time": d["time"], "particles": n,
            "first": _row(p, 0) if n else None, "last": _row(p, n - 1) if n else None}
-    if d["kind"] == "snapshot":
+    if d["kind"] != "checkpoint":
         out["gas_cells"] = len(d["gas"]["pressure"]) if d["gas"] else None
+    if d["kind"] == "restart file":
+        out["step"] = d["step"]
+        out["gas_pressure_first"] = d["gas"]["pressure"][0] if d["gas"] else None
+    if d["kind"] == "snapshot":
         t = d["collisions"]
         out["pair_collisions"] = sum(t["pair_collisions"]) if t else None
         out["wall_collisions"] = sum(t["wall_collisions"]) if t else None

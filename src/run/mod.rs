@@ -436,6 +436,14 @@ fn simulate<Q: EventQueue>(
             s.name
         );
     }
+    if (s.output.restart_interval.is_some() || opts.restart.is_some())
+        && s.engine.model != ContactModel::Hard
+    {
+        anyhow::bail!(
+            "{}: restart files (output.restart_interval, --restart) of soft and hybrid runs are not supported yet: the soft contacts' history is not stored",
+            s.name
+        );
+    }
     let mut gas = GasRun::new(s);
     if let Some(g) = gas.as_mut() {
         if opts.log.is_some() {

@@ -81,10 +81,21 @@ impl TimeSeries {
 
 impl<Q: EventQueue> Recorder<Q> for TimeSeries {
     fn start(&mut self, engine: &mut Engine<Q>, gas: Option<&mut GasRun>) -> anyhow::Result<()> {
+        self.last = engine.counters;
+        let t = engine.time();
+        if t > 0.0 {
+            // A restarted run (`--restart`): no row at the restart time
+            // (the gas row would cut the gas interval statistics short);
+            // the first row is the next sample of the uninterrupted run.
+            // Its interval columns cover the time since the restart.
+            self.last_time = t;
+            self.next = next_multiple(t, self.interval);
+            self.collapse_seen = engine.collapse_reports.len();
+            return Ok(());
+        }
         if let (Some(series), Some(g)) = (self.gas_series.as_mut(), gas) {
             series.row(&g.sample_row())?;
         }
-        self.last = engine.counters;
         sample_interval_row(engine, &mut self.series, &self.last, 0.0, 0, self.soft)
     }
 

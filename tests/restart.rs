@@ -1,0 +1,433 @@
+//! Restart files (issue 12, section 2): `[output] restart_interval` writes
+//! `restart.bin`; `edpm run --restart` continues bit for bit as the
+//! uninterrupted run (gas and an inlet); writing restart files changes no
+//! result; a run killed with SIGKILL leaves a complete, usable restart
+//! file; damaged or mismatched restart files are refused in plain words;
+//! `tools/edpm_data.py` reads them as edpm does.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use edpm::io::container;
+use edpm::run::restart::{RESTART_KIND, RestartFile};
+
+const EDPM: &str = env!("CARGO_BIN_EXE_edpm");
+const ROOT: &str = env!("CARGO_MANIFEST_DIR");
+const RISER: &str = "scenarios/riser-nonideal.toml";
+const JET: &str = "scenarios/bubbling-bed-jet.toml";
+
+fn fresh_dir(name: &str) -> PathBuf {
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("restart-{name}"));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+fn edpm(args: &[&str]) -> Output {
+    Command::new(EDPM)
+        .current_dir(ROOT)
+        .args(args)
+        .output()
+        .expect("edpm runs")
+}
+
+/// `edpm run SCENARIO --quiet --out DIR ARGS`, which must succeed.
+fn run_ok(scenario: &str, dir: &Path, args: &[&str]) {
+    let mut all = vec!["run", scenario, "--quiet", "--out", s(dir)];
+    all.extend_from_slice(args);
+    let o = edpm(&all);
+    assert!(
+        o.status.success(),
+        "edpm {all:?} failed: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+}
+
+/// The single `edpm: error:` line of a clean failure (exit code 1).
+fn error_line(o: &Output) -> String {
+    let err = String::from_utf8_lossy(&o.stderr).into_owned();
+    assert_eq!(o.status.code(), Some(1), "expected a clean error: {err}");
+    let lines: Vec<&str> = err
+        .lines()
+        .filter(|l| l.starts_with("edpm: error: "))
+        .collect();
+    assert_eq!(lines.len(), 1, "one error line expected: {err}");
+    lines[0].trim_start_matches("edpm: error: ").to_string()
+}
+
+fn read_restart(path: &Path) -> RestartFile {
+    container::read::<RestartFile>(&RESTART_KIND, path)
+        .unwrap_or_else(|e| panic!("{e:#}"))
+        .1
+}
+
+/// The rows of a CSV file at times after `t` (s), as text.
+fn rows_after(path: &Path, t: f64) -> Vec<String> {
+    std::fs::read_to_string(path)
+        .unwrap()
+        .lines()
+        .skip(1)
+        .filter(|l| l.split(',').next().unwrap().parse::<f64>().unwrap() > t * (1.0 + 1e-9))
+        .map(str::to_string)
+        .collect()
+}
+
+/// Runs `scenario` to `t_end` three ways: writing restart files every
+/// `interval` (a), without them (c), and restarted from a's last restart
+/// file (b); a, b and c must end in the same bits.
+fn restart_is_bit_identical(name: &str, scenario: &str, t_end: &str, interval: &str) {
+    let dir = fresh_dir(name);
+    let (a, b, c) = (dir.join("a"), dir.join("b"), dir.join("c"));
+    let every = format!("output.restart_interval={interval}");
+    run_ok(scenario, &a, &["--t-end", t_end, "--set", &every]);
+    run_ok(scenario, &c, &["--t-end", t_end]);
+    // The restart file outside a's directory (a run deletes the outputs
+    // of an earlier run in its own).
+    let file = dir.join("restart.bin");
+    std::fs::copy(a.join("restart.bin"), &file).unwrap();
+    let r = read_restart(&file);
+    let t_restart = r.time;
+    let t_end_f: f64 = t_end.parse().unwrap();
+    let interval_f: f64 = interval.parse().unwrap();
+    // The last restart file is the last multiple of the interval before
+    // t_end (to within the clock's round-off).
+    let expected = ((t_end_f / interval_f).round() - 1.0) * interval_f;
+    assert!(
+        (t_restart - expected).abs() < 1e-9,
+        "restart at {t_restart} s, expected {expected} s"
+    );
+    assert!(r.particles.iter().any(|p| p.active), "an empty restart");
+    run_ok(scenario, &b, &["--t-end", t_end, "--restart", s(&file)]);
+    for f in ["final_state.bin", "final_particles.csv"] {
+        let bytes = |d: &Path| std::fs::read(d.join(f)).unwrap();
+        assert!(
+            bytes(&a) == bytes(&c),
+            "{name}: {f}: restart files changed the run"
+        );
+        assert!(
+            bytes(&a) == bytes(&b),
+            "{name}: {f}: the restarted run differs"
+        );
+    }
+    // The restarted run's time series (particles and gas) continue the
+    // uninterrupted one's bit for bit (both print shortest round-trip
+    // decimals).
+    for f in ["timeseries.csv", "gas_timeseries.csv"] {
+        let after = rows_after(&b.join(f), t_restart);
+        assert!(!after.is_empty(), "{name}: {f}: no rows after the restart");
+        assert_eq!(after, rows_after(&a.join(f), t_restart), "{name}: {f}");
+    }
+    let summary = |d: &Path| -> serde_json::Value {
+        serde_json::from_str(&std::fs::read_to_string(d.join("summary.json")).unwrap()).unwrap()
+    };
+    // Totals run on from the restart: collisions, insertions, removals.
+    assert_eq!(summary(&a)["counters"], summary(&b)["counters"], "{name}");
+    assert!(
+        summary(&b)["counters"]["pair_collisions"].as_u64().unwrap()
+            > r.engine.counters.pair_collisions,
+        "{name}: no collision after the restart: the test would not see a wrong neighbour list"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// The non-ideal riser: gas, an inlet fed at a solids flux, an outlet.
+#[test]
+fn a_restarted_riser_continues_bit_for_bit() {
+    restart_is_bit_identical("riser", RISER, "0.06", "0.03");
+}
+
+/// The jet bed: gas, a jet, 2400 particles in dense contact.
+#[test]
+fn a_restarted_jet_bed_continues_bit_for_bit() {
+    restart_is_bit_identical("jet", JET, "0.03", "0.01");
+}
+
+#[test]
+fn a_killed_run_leaves_a_complete_restart_file_that_continues_it() {
+    let dir = fresh_dir("killed");
+    let (killed, whole, restarted) = (dir.join("killed"), dir.join("whole"), dir.join("restarted"));
+    let mut child = Command::new(EDPM)
+        .current_dir(ROOT)
+        .args(["run", RISER, "--quiet", "--t-end", "100"])
+        .args(["--set", "output.restart_interval=1e-3", "--out"])
+        .arg(&killed)
+        .spawn()
+        .unwrap();
+    // Wait for the first restart file and a few more intervals (no timing
+    // is asserted: the deadline only keeps a broken build from hanging the
+    // suite), then SIGKILL, likely while a later file is being written.
+    let file = killed.join("restart.bin");
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(300);
+    while !file.exists() && std::time::Instant::now() < deadline {
+        std::thread::sleep(std::time::Duration::from_millis(5));
+    }
+    std::thread::sleep(std::time::Duration::from_millis(300));
+    child.kill().unwrap();
+    child.wait().unwrap();
+    let r = read_restart(&file);
+    assert!(r.time > 0.0 && r.step > 0, "restart at {} s", r.time);
+    // Continue 10 flow steps past the restart; the same run without a
+    // kill ends in the same bits.
+    let t_end = format!("{:e}", r.time + 1e-3);
+    let kept = dir.join("kept.bin");
+    std::fs::copy(&file, &kept).unwrap();
+    run_ok(
+        RISER,
+        &restarted,
+        &["--t-end", &t_end, "--restart", s(&kept)],
+    );
+    run_ok(RISER, &whole, &["--t-end", &t_end]);
+    let bytes = |d: &Path| std::fs::read(d.join("final_state.bin")).unwrap();
+    assert!(
+        bytes(&restarted) == bytes(&whole),
+        "killed and restarted differs"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn damaged_or_mismatched_restart_files_are_refused_in_plain_words() {
+    let dir = fresh_dir("damaged");
+    let run = dir.join("run");
+    run_ok(
+        "scenarios/box-walls.toml",
+        &run,
+        &["--t-end", "0.02", "--set", "output.restart_interval=0.01"],
+    );
+    let bytes = std::fs::read(run.join("restart.bin")).unwrap();
+    let len = bytes.len();
+    let payload_len = u64::from_le_bytes(bytes[16..24].try_into().unwrap()) as usize;
+    let at = 48 + 4 * payload_len.div_ceil(4096);
+    assert_eq!(&bytes[..8], b"EDPMRST\0");
+    let write = |name: &str, b: &[u8]| {
+        let p = dir.join(name);
+        std::fs::write(&p, b).unwrap();
+        p
+    };
+    let restart = |scenario: &str, file: &Path, extra: &[&str]| {
+        let out = dir.join("out");
+        let mut args = vec!["run", scenario, "--quiet", "--force", "--out", s(&out)];
+        args.extend_from_slice(&["--t-end", "0.02", "--restart", s(file)]);
+        args.extend_from_slice(extra);
+        error_line(&edpm(&args))
+    };
+    let good = write("good.bin", &bytes);
+    let box_walls = "scenarios/box-walls.toml";
+
+    // A flipped bit in the payload's second chunk: the error names it.
+    let mut b = bytes.clone();
+    b[at + 4096 + 7] ^= 0x10;
+    let p = write("flip.bin", &b);
+    assert_eq!(
+        restart(box_walls, &p, &[]),
+        format!(
+            "{}: checksum mismatch at byte offsets {}..{}: the restart file is damaged there",
+            p.display(),
+            at + 4096,
+            at + 2 * 4096
+        )
+    );
+    // Truncated (a copy cut short).
+    let p = write("cut.bin", &bytes[..len - 10]);
+    assert_eq!(
+        restart(box_walls, &p, &[]),
+        format!(
+            "{}: truncated at byte offset {}: the header announces {len} bytes",
+            p.display(),
+            len - 10
+        )
+    );
+    // Not a restart file at all (a checkpoint).
+    let cp = run.join("final_state.bin");
+    assert_eq!(
+        restart(box_walls, &cp, &[]),
+        format!(
+            "{}: not an edpm restart file: bytes 0..8 are not the magic \"EDPMRST\\0\"",
+            cp.display()
+        )
+    );
+    // Another scenario, or the same with other physics.
+    let fingerprint = read_restart(&good).scenario;
+    let other = |scenario: &str, extra: &[&str]| {
+        let e = restart(scenario, &good, extra);
+        let prefix = format!(
+            "{}: this restart file was written by a run of another scenario (or other initial particles, \
+             or another edpm version) than {scenario}: scenario fingerprint {fingerprint:016x}, expected ",
+            good.display()
+        );
+        assert!(e.starts_with(&prefix), "{e}");
+        assert!(
+            e.ends_with(
+                "; restart only the scenario that wrote it (t_end and [output] may differ)"
+            ),
+            "{e}"
+        );
+    };
+    other("scenarios/hcs-3d.toml", &[]);
+    other(box_walls, &["--set", "collisions.default.e_n=0.8"]);
+    // At or after t_end: nothing to continue.
+    let out = dir.join("out");
+    let o = edpm(&[
+        "run",
+        box_walls,
+        "--quiet",
+        "--force",
+        "--out",
+        s(&out),
+        "--t-end",
+        "0.01",
+        "--restart",
+        s(&good),
+    ]);
+    let r = read_restart(&good);
+    assert_eq!(
+        error_line(&o),
+        format!(
+            "{}: the restart file is at t = {} s, not before time.t_end = 0.01 s: nothing to continue (raise t_end with --t-end)",
+            good.display(),
+            r.time
+        )
+    );
+    // A restart file among the outputs the run deletes first.
+    let inside = run.join("restart.bin");
+    let o = edpm(&[
+        "run",
+        box_walls,
+        "--quiet",
+        "--force",
+        "--out",
+        s(&run),
+        "--restart",
+        s(&inside),
+    ]);
+    assert_eq!(
+        error_line(&o),
+        format!(
+            "--restart {}: lies among the outputs of {}, which the run deletes when it starts; copy it elsewhere or give another --out",
+            inside.display(),
+            run.display()
+        )
+    );
+    // Soft and hybrid runs: refused before anything runs.
+    let o = edpm(&[
+        "run",
+        box_walls,
+        "--quiet",
+        "--force",
+        "--out",
+        s(&out),
+        "--set",
+        "engine.model=soft",
+        "--set",
+        "output.restart_interval=0.01",
+    ]);
+    assert_eq!(
+        error_line(&o),
+        format!(
+            "{box_walls}: restart files (output.restart_interval, --restart) of soft and hybrid runs are not supported yet: the soft contacts' history is not stored"
+        )
+    );
+    // The good file restarts (and with a later t_end and other outputs).
+    run_ok(
+        box_walls,
+        &dir.join("ok"),
+        &[
+            "--t-end",
+            "0.03",
+            "--restart",
+            s(&good),
+            "--set",
+            "output.sample_interval=0.005",
+        ],
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// Runs `python3 tools/edpm_data.py FILE` and returns its JSON line.
+fn python_summary(path: &Path) -> serde_json::Value {
+    let o = Command::new("python3")
+        .current_dir(ROOT)
+        .args(["tools/edpm_data.py", s(path)])
+        .output()
+        .expect("python3 is required to test tools/edpm_data.py");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    serde_json::from_str(String::from_utf8(o.stdout).unwrap().trim()).unwrap()
+}
+
+#[test]
+fn python_reads_restart_files_as_edpm_does() {
+    let dir = fresh_dir("python");
+    let run = dir.join("run");
+    run_ok(
+        RISER,
+        &run,
+        &["--t-end", "0.02", "--set", "output.restart_interval=0.01"],
+    );
+    let path = run.join("restart.bin");
+    let r = read_restart(&path);
+    let py = python_summary(&path);
+    let active: Vec<_> = r.particles.iter().filter(|p| p.active).collect();
+    assert_eq!(py["kind"], "restart file");
+    assert_eq!(py["version"], 1);
+    assert_eq!(py["particles"].as_u64().unwrap() as usize, active.len());
+    assert_eq!(py["step"].as_u64().unwrap(), r.step);
+    // Every particle and gas value through the module, as IEEE bit
+    // patterns (serde_json's float parsing is not always correctly
+    // rounded).
+    let script = format!(
+        "import sys, json, struct; sys.path.insert(0, 'tools')\n\
+         from edpm_data import read_restart\n\
+         b = lambda x: struct.unpack('<Q', struct.pack('<d', x))[0]\n\
+         r = read_restart({path:?}); p = r['particles']; g = r['gas']\n\
+         print(json.dumps({{'time': b(r['time']), 'id': p['id'], \
+         'pos': [[b(x) for x in v] for v in p['pos']], 'vel': [[b(x) for x in v] for v in p['vel']], \
+         'radius': [b(x) for x in p['radius']], 'pressure': [b(x) for x in g['pressure']], \
+         'eps': [b(x) for x in g['gas_fraction']], 'velocity': [[b(x) for x in a] for a in g['velocity']]}}))",
+        path = s(&path)
+    );
+    let o = Command::new("python3")
+        .current_dir(ROOT)
+        .args(["-c", &script])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let bits = |v: &serde_json::Value| -> Vec<u64> {
+        v.as_array()
+            .unwrap()
+            .iter()
+            .map(|x| x.as_u64().unwrap())
+            .collect()
+    };
+    let vec_bits = |v: &serde_json::Value| -> Vec<Vec<u64>> {
+        v.as_array().unwrap().iter().map(bits).collect()
+    };
+    let gas = r.gas.as_ref().expect("gas fields");
+    assert_eq!(
+        py["gas_cells"].as_u64().unwrap() as usize,
+        gas.pressure.len()
+    );
+    assert_eq!(v["time"].as_u64().unwrap(), r.time.to_bits());
+    let ids: Vec<u64> = active.iter().map(|p| p.id).collect();
+    assert_eq!(bits(&v["id"]), ids);
+    let tri = |f: fn(&&edpm::engine::SlotState) -> glam::DVec3| -> Vec<Vec<u64>> {
+        active
+            .iter()
+            .map(|p| f(p).to_array().iter().map(|x| x.to_bits()).collect())
+            .collect()
+    };
+    assert_eq!(vec_bits(&v["pos"]), tri(|p| p.pos));
+    assert_eq!(vec_bits(&v["vel"]), tri(|p| p.vel));
+    let radius: Vec<u64> = active.iter().map(|p| p.radius.to_bits()).collect();
+    assert_eq!(bits(&v["radius"]), radius);
+    let f_bits = |x: &[f64]| -> Vec<u64> { x.iter().map(|v| v.to_bits()).collect() };
+    assert_eq!(bits(&v["pressure"]), f_bits(&gas.pressure));
+    assert_eq!(bits(&v["eps"]), f_bits(&gas.gas_fraction));
+    let velocity: Vec<Vec<u64>> = gas.velocity.iter().map(|a| f_bits(a)).collect();
+    assert_eq!(vec_bits(&v["velocity"]), velocity);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
