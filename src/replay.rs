@@ -181,6 +181,27 @@ pub fn replay_log(path: &Path, opts: &ReplayOptions) -> anyhow::Result<(ReplayOu
                 }
                 reader.recycle(records);
             }
+            Block::Velocities(h, v) => {
+                // The velocities after the gas kicks at the start of a
+                // flow step: at T itself they are the next step's.
+                if opts.at.is_some_and(|t| h.time >= t) {
+                    reached_end = false;
+                    break;
+                }
+                replay
+                    .set_velocities(&h, &v)
+                    .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+            }
+            Block::States(h, v) => {
+                // The states at the end of a flow step (soft and hybrid).
+                if opts.at.is_some_and(|t| h.time > t) {
+                    reached_end = false;
+                    break;
+                }
+                replay
+                    .set_states(&h, &v)
+                    .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+            }
             Block::Checkpoint(h, particles) => {
                 if opts.at.is_some_and(|t| h.time > t) {
                     reached_end = false;

@@ -7,7 +7,7 @@
 //!               header CRC-32 u32, 12 reserved bytes
 //! header        bincode (serde, fixed-int, little-endian) of LogHeader
 //! block*        24-byte block header: magic "BLK\0", kind u32 (1 records,
-//!               2 checkpoint, 3 end), count u32, payload length u32, CRC-32
+//!               2 checkpoint, 3 end, 4 velocities, 5 states), count u32, payload length u32, CRC-32
 //!               u32 (of kind, count, length, sequence and payload),
 //!               sequence number u32 (0, 1, 2, … in file order); then the
 //!               payload
@@ -17,7 +17,12 @@
 //! ([`LogRecord`]). A checkpoint payload is a [`CheckpointHeader`] followed
 //! by `count` particles of exactly [`PARTICLE_BYTES`] bytes
 //! ([`LogParticle`]). The end block, written when the run ends, holds the
-//! number of records and the end time ([`LogEnd`]). Blocks are written
+//! number of records and the end time ([`LogEnd`]). A velocities block
+//! (gas runs: the velocities after each flow step's gas kicks) or a states
+//! block (soft and hybrid runs: every state after each flow step) is a
+//! [`SetHeader`] followed by `count` entries of [`VELOCITY_ENTRY_BYTES`]
+//! or [`STATE_ENTRY_BYTES`] bytes: an id and the values replay sets.
+//! Blocks are written
 //! whole and flushed, so a killed run leaves a log that reads up to its
 //! last complete block; the sequence numbers and the end block expose a
 //! block missing in the middle or at the end.
@@ -33,8 +38,12 @@ use crate::engine::{CollisionRecord, Partner, Record, State};
 use crate::particles::NewParticle;
 
 /// Format version written by this build: 2 added block sequence numbers,
-/// the end block, and block checksums that cover the block header.
-pub const FORMAT_VERSION: u32 = 2;
+/// the end block, and block checksums that cover the block header; 3 added
+/// the velocities and states blocks (gas, soft and hybrid runs).
+pub const FORMAT_VERSION: u32 = 3;
+/// Oldest format version read: a version 2 log is a version 3 log without
+/// velocities or states blocks.
+pub const OLDEST_READ_VERSION: u32 = 2;
 pub const FILE_MAGIC: [u8; 8] = *b"EDPMLOG\0";
 pub const BLOCK_MAGIC: [u8; 4] = *b"BLK\0";
 /// Size of the fixed file header (bytes).
@@ -55,6 +64,14 @@ pub const RECORDS_PER_BLOCK: usize = 4096;
 const KIND_RECORDS: u32 = 1;
 const KIND_CHECKPOINT: u32 = 2;
 const KIND_END: u32 = 3;
+const KIND_VELOCITIES: u32 = 4;
+const KIND_STATES: u32 = 5;
+/// Bytes of the header of a velocities or states block ([`SetHeader`]).
+pub const SET_HEADER_BYTES: usize = 16;
+/// Bytes of one velocities entry: id u64, velocity 3 × f64.
+pub const VELOCITY_ENTRY_BYTES: usize = 32;
+/// Bytes of one states entry: id u64, state 9 × f64.
+pub const STATE_ENTRY_BYTES: usize = 80;
 
 /// The end block's payload: what a complete log holds.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -378,6 +395,56 @@ impl LogWriter {
         Ok(())
     }
 
+    /// Writes a velocities block (after flushing pending records): the
+    /// velocity of every particle given, set at `clock` (s).
+    pub fn velocities(
+        &mut self,
+        time: f64,
+        clock: f64,
+        particles: impl Iterator<Item = (u64, DVec3)>,
+    ) -> anyhow::Result<()> {
+        let mut payload = Vec::new();
+        payload.extend_from_slice(&time.to_le_bytes());
+        payload.extend_from_slice(&clock.to_le_bytes());
+        for (id, v) in particles {
+            payload.extend_from_slice(&id.to_le_bytes());
+            for x in v.to_array() {
+                payload.extend_from_slice(&x.to_le_bytes());
+            }
+        }
+        self.set_block(KIND_VELOCITIES, VELOCITY_ENTRY_BYTES, payload)
+    }
+
+    /// Writes a states block (after flushing pending records): the state
+    /// of every particle given, at `clock` (s).
+    pub fn states(
+        &mut self,
+        time: f64,
+        clock: f64,
+        particles: impl Iterator<Item = (u64, State)>,
+    ) -> anyhow::Result<()> {
+        let mut payload = Vec::new();
+        payload.extend_from_slice(&time.to_le_bytes());
+        payload.extend_from_slice(&clock.to_le_bytes());
+        for (id, s) in particles {
+            payload.extend_from_slice(&id.to_le_bytes());
+            for x in state_array(&s) {
+                payload.extend_from_slice(&x.to_le_bytes());
+            }
+        }
+        self.set_block(KIND_STATES, STATE_ENTRY_BYTES, payload)
+    }
+
+    fn set_block(&mut self, kind: u32, entry: usize, payload: Vec<u8>) -> anyhow::Result<()> {
+        self.flush()?;
+        let count = u32::try_from((payload.len() - SET_HEADER_BYTES) / entry)
+            .context("block holds too many particles")?;
+        let header = block_header(kind, count, self.next_sequence()?, &payload)?;
+        self.file.write_all(&[&header[..], &payload].concat())?;
+        self.bytes += (BLOCK_HEADER_BYTES + payload.len()) as u64;
+        Ok(())
+    }
+
     /// Flushes the pending records and writes the end block: the log is
     /// complete. `time` is the end of the run (s).
     pub fn finish(&mut self, time: f64) -> anyhow::Result<()> {
@@ -442,11 +509,11 @@ pub enum LogError {
     #[error("{file}: not an edpm event log (bad magic)")]
     NotALog { file: String },
     #[error(
-        "{file}: event log format version {found} is not supported (this edpm reads version {FORMAT_VERSION})"
+        "{file}: event log format version {found} is not supported (this edpm reads versions {OLDEST_READ_VERSION} to {FORMAT_VERSION})"
     )]
     Version { file: String, found: u32 },
     #[error(
-        "{file}: event log format version 1 (written by an older edpm, without block sequence numbers) is no longer read; this edpm reads version {FORMAT_VERSION}: run the scenario again with --log"
+        "{file}: event log format version 1 (written by an older edpm, without block sequence numbers) is no longer read; this edpm reads versions {OLDEST_READ_VERSION} to {FORMAT_VERSION}: run the scenario again with --log"
     )]
     OldVersion { file: String },
     #[error(
@@ -481,6 +548,19 @@ pub enum LogError {
 pub enum Block {
     Records(Vec<LogRecord>),
     Checkpoint(CheckpointHeader, Vec<LogParticle>),
+    /// Velocities set on the particles named (m/s).
+    Velocities(SetHeader, Vec<(u64, [f64; 3])>),
+    /// States set on the particles named (position, velocity, angular
+    /// velocity, as in records).
+    States(SetHeader, Vec<(u64, [f64; 9])>),
+}
+
+/// When the values of a velocities or states block apply: absolute time
+/// and engine clock (s).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SetHeader {
+    pub time: f64,
+    pub clock: f64,
 }
 
 /// Reads a log sequentially, block by block through one reused buffer.
@@ -529,7 +609,7 @@ impl LogReader {
         if version == 1 {
             return Err(LogError::OldVersion { file: name });
         }
-        if version != FORMAT_VERSION {
+        if !(OLDEST_READ_VERSION..=FORMAT_VERSION).contains(&version) {
             return Err(LogError::Version {
                 file: name,
                 found: version,
@@ -697,6 +777,8 @@ impl LogReader {
             KIND_RECORDS => len == count * RECORD_BYTES,
             KIND_CHECKPOINT => len == CHECKPOINT_HEADER_BYTES + count * PARTICLE_BYTES,
             KIND_END => len == END_BYTES && count == 0,
+            KIND_VELOCITIES => len == SET_HEADER_BYTES + count * VELOCITY_ENTRY_BYTES,
+            KIND_STATES => len == SET_HEADER_BYTES + count * STATE_ENTRY_BYTES,
             _ => false,
         };
         if !consistent {
@@ -748,6 +830,30 @@ impl LogReader {
                 records.clear();
                 records.extend(payload.chunks_exact(RECORD_BYTES).map(LogRecord::decode));
                 Block::Records(records)
+            }
+            KIND_VELOCITIES | KIND_STATES => {
+                let f = |b: &[u8], at: usize| {
+                    f64::from_le_bytes(b[at..at + 8].try_into().expect("8 bytes"))
+                };
+                let h = SetHeader {
+                    time: f(payload, 0),
+                    clock: f(payload, 8),
+                };
+                let entries = &payload[SET_HEADER_BYTES..];
+                let id = |e: &[u8]| u64::from_le_bytes(e[..8].try_into().expect("8 bytes"));
+                if kind == KIND_VELOCITIES {
+                    let v = entries
+                        .chunks_exact(VELOCITY_ENTRY_BYTES)
+                        .map(|e| (id(e), std::array::from_fn(|k| f(e, 8 + 8 * k))))
+                        .collect();
+                    Block::Velocities(h, v)
+                } else {
+                    let v = entries
+                        .chunks_exact(STATE_ENTRY_BYTES)
+                        .map(|e| (id(e), std::array::from_fn(|k| f(e, 8 + 8 * k))))
+                        .collect();
+                    Block::States(h, v)
+                }
             }
             _ => {
                 let (ch, _): (CheckpointHeader, usize) = bincode::serde::decode_from_slice(
@@ -941,6 +1047,50 @@ impl Replay {
             k => return Err(format!("unknown record kind {k} at time {}", r.time)),
         }
         self.time = r.time;
+        Ok(())
+    }
+
+    /// Applies a velocities block: sets the velocity of each particle
+    /// named (positions and clocks unchanged: the engine kicks without
+    /// moving).
+    pub fn set_velocities(&mut self, h: &SetHeader, v: &[(u64, [f64; 3])]) -> Result<(), String> {
+        for &(id, vel) in v {
+            match self.particles.get_mut(id as usize).and_then(Option::as_mut) {
+                Some(p) => p.state.vel = DVec3::from_array(vel),
+                None => {
+                    return Err(format!(
+                        "velocities block at time {} names unknown particle {id}",
+                        h.time
+                    ));
+                }
+            }
+        }
+        self.time = h.time;
+        Ok(())
+    }
+
+    /// Applies a states block: sets the state of each particle named, at
+    /// the block's clock.
+    pub fn set_states(&mut self, h: &SetHeader, v: &[(u64, [f64; 9])]) -> Result<(), String> {
+        for (id, s) in v {
+            match self
+                .particles
+                .get_mut(*id as usize)
+                .and_then(Option::as_mut)
+            {
+                Some(p) => {
+                    p.state = array_state(s);
+                    p.clock = h.clock;
+                }
+                None => {
+                    return Err(format!(
+                        "states block at time {} names unknown particle {id}",
+                        h.time
+                    ));
+                }
+            }
+        }
+        self.time = h.time;
         Ok(())
     }
 

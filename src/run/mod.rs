@@ -347,6 +347,9 @@ impl<Q: EventQueue> FlowLoop<'_, Q> {
                     diagnose::gas_failure_causes(g, dt)
                 );
             }
+            for r in self.recorders.iter_mut() {
+                r.after_gas_kicks(&mut self.engine)?;
+            }
         } else if gravity != DVec3::ZERO && !self.engine.integrates_gravity() {
             self.kick_all(gravity * (kick * dt))?;
         }
@@ -430,12 +433,6 @@ fn simulate<Q: EventQueue>(
     let wall_start = Instant::now();
     let cpu_start = crate::timing::cpu_time();
     let mut engine = build_engine::<Q>(s)?;
-    if opts.log.is_some() && s.engine.model != ContactModel::Hard {
-        anyhow::bail!(
-            "{}: event logs (--log) of soft and hybrid runs are not supported yet: soft steps are not logged",
-            s.name
-        );
-    }
     if (s.output.restart_interval.is_some() || opts.restart.is_some())
         && s.engine.model != ContactModel::Hard
     {
@@ -446,12 +443,6 @@ fn simulate<Q: EventQueue>(
     }
     let mut gas = GasRun::new(s);
     if let Some(g) = gas.as_mut() {
-        if opts.log.is_some() {
-            anyhow::bail!(
-                "{}: event logs (--log) of gas-coupled runs are not supported yet: the per-particle drag kicks are not logged",
-                s.name
-            );
-        }
         g.initialise(&engine);
     }
     if let Some(log) = &opts.log {

@@ -1,6 +1,8 @@
 //! The binary event log (`--log`, docs/event-log.md): every record of the
-//! engine, the uniform kicks, the ends of flow steps and full-state
-//! checkpoints.
+//! engine, the uniform kicks, the velocities after each gas step's
+//! per-particle kicks, the states after each flow step of soft and hybrid
+//! runs (soft steps move particles between events), the ends of flow
+//! steps and full-state checkpoints.
 
 use std::path::Path;
 
@@ -20,6 +22,8 @@ pub struct EventLog {
     writer: LogWriter,
     /// A checkpoint every this many flow steps (and after the last).
     checkpoint_steps: u64,
+    /// Soft or hybrid model: log every state after each flow step.
+    soft: bool,
 }
 
 impl EventLog {
@@ -46,6 +50,7 @@ impl EventLog {
         Ok(EventLog {
             writer: LogWriter::create(path, &header)?,
             checkpoint_steps,
+            soft: engine.model() != crate::engine::ContactModel::Hard,
         })
     }
 
@@ -59,6 +64,20 @@ impl EventLog {
 
     fn checkpoint_due(&self, end: &StepEnd) -> bool {
         end.step.is_multiple_of(self.checkpoint_steps) || end.last
+    }
+
+    /// Every particle's stored state (slot order, all at the current clock
+    /// right after a synchronisation).
+    fn states_block<Q: EventQueue>(&mut self, engine: &Engine<Q>) -> anyhow::Result<()> {
+        let states = engine.stored_particles().map(|p| {
+            let s = crate::engine::State {
+                pos: p.pos,
+                vel: p.vel,
+                omega: p.omega,
+            };
+            (p.id, s)
+        });
+        self.writer.states(engine.time(), engine.clock(), states)
     }
 }
 
@@ -78,13 +97,22 @@ impl<Q: EventQueue> Recorder<Q> for EventLog {
         })
     }
 
+    /// The records so far (insertions), then every velocity after the
+    /// kicks: replay sets them and needs no gas solver.
+    fn after_gas_kicks(&mut self, engine: &mut Engine<Q>) -> anyhow::Result<()> {
+        self.drain(engine)?;
+        let velocities = engine.stored_particles().map(|p| (p.id, p.vel));
+        self.writer
+            .velocities(engine.time(), engine.clock(), velocities)
+    }
+
     /// Drained every step: the record buffer stays small and in cache.
     fn after_events(&mut self, engine: &mut Engine<Q>, _dt: f64) -> anyhow::Result<()> {
         self.drain(engine)
     }
 
     fn needs_sync(&self, end: &StepEnd) -> bool {
-        self.checkpoint_due(end)
+        self.soft || self.checkpoint_due(end)
     }
 
     /// The end of a flow step, logged before the engine synchronises.
@@ -106,6 +134,10 @@ impl<Q: EventQueue> Recorder<Q> for EventLog {
         _gas: Option<&mut crate::gas::flow::GasRun>,
         end: &StepEnd,
     ) -> anyhow::Result<()> {
+        if self.soft {
+            self.drain(engine)?;
+            self.states_block(engine)?;
+        }
         if !self.checkpoint_due(end) {
             return Ok(());
         }

@@ -54,7 +54,8 @@ pub struct RunEnd {
 
 /// A writer of run output, driven by the flow-step loop. In a step the
 /// calls come in this order: [`before_kick`](Recorder::before_kick) (for
-/// every uniform kick), [`after_events`](Recorder::after_events),
+/// every uniform kick) or [`after_gas_kicks`](Recorder::after_gas_kicks),
+/// [`after_events`](Recorder::after_events),
 /// [`needs_sync`](Recorder::needs_sync), [`before_sync`](Recorder::before_sync)
 /// (when the particles are synchronised), then [`end_step`](Recorder::end_step).
 pub trait Recorder<Q: EventQueue> {
@@ -66,6 +67,12 @@ pub trait Recorder<Q: EventQueue> {
     /// A uniform velocity change `dv` (m/s) is about to be applied to every
     /// particle.
     fn before_kick(&mut self, _engine: &mut Engine<Q>, _dv: DVec3) -> anyhow::Result<()> {
+        Ok(())
+    }
+
+    /// The gas step has kicked every particle (per-particle drag,
+    /// pressure-gradient and gravity kicks; the engine is at clock 0).
+    fn after_gas_kicks(&mut self, _engine: &mut Engine<Q>) -> anyhow::Result<()> {
         Ok(())
     }
 
