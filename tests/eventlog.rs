@@ -311,17 +311,17 @@ fn truncated_corrupted_and_foreign_logs_give_exact_errors() {
     );
 
     // Another format version.
-    let v3 = damaged_copy(&log, "v3.log", |b| {
-        b[8..12].copy_from_slice(&3u32.to_le_bytes())
+    let v4 = damaged_copy(&log, "v4.log", |b| {
+        b[8..12].copy_from_slice(&4u32.to_le_bytes())
     });
-    let err = replay_log(&v3, &ReplayOptions::default())
+    let err = replay_log(&v4, &ReplayOptions::default())
         .unwrap_err()
         .to_string();
     assert_eq!(
         err,
         format!(
-            "{}: event log format version 3 is not supported (this edpm reads version 2)",
-            v3.display()
+            "{}: event log format version 4 is not supported (this edpm reads versions 2 to 3)",
+            v4.display()
         )
     );
     // A version-1 log (no block sequence numbers) is refused in plain words.
@@ -334,7 +334,7 @@ fn truncated_corrupted_and_foreign_logs_give_exact_errors() {
     assert_eq!(
         err,
         format!(
-            "{}: event log format version 1 (written by an older edpm, without block sequence numbers) is no longer read; this edpm reads version 2: run the scenario again with --log",
+            "{}: event log format version 1 (written by an older edpm, without block sequence numbers) is no longer read; this edpm reads versions 2 to 3: run the scenario again with --log",
             v1.display()
         )
     );

@@ -1,9 +1,11 @@
 #!/usr/bin/env python3
-"""Reader for edpm binary event logs (format version 2, docs/event-log.md).
+"""Reader for edpm binary event logs (format versions 2 and 3, docs/event-log.md).
 
     from edpm_log import read_log
     log = read_log("run.log")
     log["records"]["kind"], log["checkpoints"][-1], log["initial"]["pos"], ...
+    log["sets"]     # velocities and states blocks (version 3: gas, soft, hybrid
+                    # runs): (kind "velocities" or "states", time, clock, table)
 
 With numpy installed, tables (records, checkpoint particles, initial
 particles) are numpy structured arrays and `densities` is an array.
@@ -29,14 +31,17 @@ try:
 except ImportError:  # the standard-library path below needs nothing else
     np = None
 
-FORMAT_VERSION = 2
+FORMAT_VERSION = 3
+OLDEST_READ_VERSION = 2
 FILE_MAGIC = b"EDPMLOG\0"
 BLOCK_MAGIC = b"BLK\0"
 FILE_HEADER_BYTES = 32
 BLOCK_HEADER_BYTES = 24
 CHECKPOINT_HEADER_BYTES = 24
-KIND_RECORDS, KIND_CHECKPOINT, KIND_END = 1, 2, 3
+KIND_RECORDS, KIND_CHECKPOINT, KIND_END, KIND_VELOCITIES, KIND_STATES = 1, 2, 3, 4, 5
 END_BYTES = 16
+SET_HEADER_BYTES = 16
+VELOCITY_ENTRY_BYTES, STATE_ENTRY_BYTES = 32, 80
 
 # Record kinds (LogRecord.kind) and collision branches (LogRecord.aux).
 PAIR, WALL, WRAP, INSERT, REMOVE, FLOW_STEP_END, KICK = range(1, 8)
@@ -58,6 +63,10 @@ RECORD_FIELDS = [("kind", 1), ("aux", 1), ("time", 1), ("clock", 1),
                  ("a", 1), ("b", 1), ("state_a", 9), ("state_b", 9)]
 PARTICLE_STRUCT = struct.Struct("<QIId9d")
 PARTICLE_FIELDS = [("id", 1), ("material", 1), ("reserved", 1), ("radius", 1), ("state", 9)]
+VELOCITY_STRUCT = struct.Struct("<Q3d")
+VELOCITY_FIELDS = [("id", 1), ("vel", 3)]
+STATE_STRUCT = struct.Struct("<Q9d")
+STATE_FIELDS = [("id", 1), ("state", 9)]
 INITIAL_STRUCT = struct.Struct("<Q3d3d3ddH")
 INITIAL_FIELDS = [("id", 1), ("pos", 3), ("vel", 3), ("omega", 3), ("radius", 1),
                   ("material", 1)]
@@ -190,11 +199,11 @@ def read_log(path, use_numpy=None):
     version, length, crc = struct.unpack_from("<3I", data, 8)
     if version == 1:
         raise LogError(f"{path}: event log format version 1 (written by an older edpm, without "
-                       f"block sequence numbers) is no longer read; this reader reads version "
-                       f"{FORMAT_VERSION}: run the scenario again with --log")
-    if version != FORMAT_VERSION:
+                       f"block sequence numbers) is no longer read; this reader reads versions "
+                       f"{OLDEST_READ_VERSION} to {FORMAT_VERSION}: run the scenario again with --log")
+    if not OLDEST_READ_VERSION <= version <= FORMAT_VERSION:
         raise LogError(f"{path}: event log format version {version} is not supported "
-                       f"(this reader reads version {FORMAT_VERSION})")
+                       f"(this reader reads versions {OLDEST_READ_VERSION} to {FORMAT_VERSION})")
     end = FILE_HEADER_BYTES + length
     if len(data) < end:
         raise LogError(f"{path}: file header is truncated")
@@ -206,7 +215,7 @@ def read_log(path, use_numpy=None):
     except (IndexError, UnicodeDecodeError, struct.error) as e:
         raise LogError(f"{path}: malformed file header ({e})") from None
 
-    record_blocks, checkpoints, truncated_at, end_block = [], [], None, None
+    record_blocks, checkpoints, sets, truncated_at, end_block = [], [], [], None, None
     at = end
     seq_expected = 0
     while at < len(data):
@@ -220,7 +229,9 @@ def read_log(path, use_numpy=None):
         # truncation: the block header has no checksum of its own.
         if not ((kind == KIND_RECORDS and length == count * RECORD_BYTES) or
                 (kind == KIND_CHECKPOINT and length == CHECKPOINT_HEADER_BYTES + count * PARTICLE_BYTES) or
-                (kind == KIND_END and length == END_BYTES and count == 0)):
+                (kind == KIND_END and length == END_BYTES and count == 0) or
+                (kind == KIND_VELOCITIES and length == SET_HEADER_BYTES + count * VELOCITY_ENTRY_BYTES) or
+                (kind == KIND_STATES and length == SET_HEADER_BYTES + count * STATE_ENTRY_BYTES)):
             raise LogError(f"{path}: malformed block (unknown kind or size) at byte offset {at}")
         body = at + BLOCK_HEADER_BYTES
         if len(data) - body < length:
@@ -245,7 +256,14 @@ def read_log(path, use_numpy=None):
             end_block = {"records": records, "time": time}
             at = body + length
             break
-        if kind == KIND_RECORDS:
+        if kind in (KIND_VELOCITIES, KIND_STATES):
+            time, clock = struct.unpack_from("<2d", payload)
+            layout = ((VELOCITY_STRUCT, VELOCITY_FIELDS) if kind == KIND_VELOCITIES
+                      else (STATE_STRUCT, STATE_FIELDS))
+            table = _columns(*layout, payload[SET_HEADER_BYTES:])
+            name = "velocities" if kind == KIND_VELOCITIES else "states"
+            sets.append((name, time, clock, table))
+        elif kind == KIND_RECORDS:
             if use_numpy:
                 record_blocks.append(np.frombuffer(payload, RECORD_DTYPE))
             else:
@@ -271,6 +289,7 @@ def read_log(path, use_numpy=None):
     else:
         log["records"] = _concat_columns(record_blocks, RECORD_FIELDS)
     log["checkpoints"] = checkpoints
+    log["sets"] = sets
     log["truncated_at"] = truncated_at
     log["end"] = end_block
     log["reader"] = "numpy" if use_numpy else "struct"
@@ -295,6 +314,8 @@ def summary(log):
         "pair_collisions": _count(kinds, PAIR),
         "wall_collisions": _count(kinds, WALL),
         "checkpoints": len(log["checkpoints"]),
+        "velocities_blocks": sum(1 for s in log["sets"] if s[0] == "velocities"),
+        "states_blocks": sum(1 for s in log["sets"] if s[0] == "states"),
         "t_last": max(times) if times else None,
         "complete": log["end"] is not None,
     }
