@@ -9,7 +9,7 @@ use glam::DVec3;
 
 use crate::collision::{self, Body};
 use crate::io::eventlog::{
-    Block, LogHeader, LogReader, LogRecord, RecordKind, Replay, ReplayParticle,
+    Block, GasBlock, LogHeader, LogReader, LogRecord, RecordKind, Replay, ReplayParticle,
 };
 use crate::io::output::write_atomic;
 
@@ -42,6 +42,12 @@ pub struct ReplayOutcome {
     pub end_time: f64,
     pub particles: usize,
     pub stats: Option<CollisionStats>,
+    /// Times of the gas blocks read (s): a gas run logs its fields with
+    /// each checkpoint.
+    pub gas_times: Vec<f64>,
+    /// The gas fields at exactly `at`, when the log holds them.
+    #[serde(skip)]
+    pub gas_at: Option<Box<GasBlock>>,
 }
 
 /// Entry point of `edpm replay`.
@@ -79,6 +85,18 @@ pub fn replay_cli(path: &Path, opts: &ReplayOptions) -> anyhow::Result<()> {
             particles.len(),
             out_dir.display()
         );
+        if let Some(g) = &outcome.gas_at {
+            let name = format!("gas_at_{t}.vtk");
+            write_gas_vtk(g, &out_dir.join(&name))?;
+            println!(
+                "gas fields at t = {t} s written to {}/{name}",
+                out_dir.display()
+            );
+        } else if let Some(&last) = outcome.gas_times.last() {
+            println!(
+                "gas fields: not written; the log holds them at its checkpoints only (the last at or before {t} s is at {last} s; --log-checkpoint-steps sets how often)"
+            );
+        }
     }
     if let Some(stats) = &outcome.stats {
         let json = serde_json::to_string_pretty(stats).context("encoding statistics")?;
@@ -114,6 +132,32 @@ pub fn replay_cli(path: &Path, opts: &ReplayOptions) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// A gas block's fields as a legacy VTK file.
+fn write_gas_vtk(g: &GasBlock, path: &Path) -> anyhow::Result<()> {
+    let grid = crate::domain::grid::GridGeometry {
+        lo: g.lo,
+        h: g.h,
+        n: g.n.map(|k| k as usize),
+        periodic: g.periodic,
+        planar: g.planar,
+    };
+    let empty: &[f64] = &[];
+    crate::io::vtk::write_gas(
+        path,
+        &grid,
+        &crate::io::vtk::GasFields {
+            gas_fraction: &g.gas_fraction,
+            pressure: &g.pressure,
+            density: &g.density,
+            face_velocity: [
+                &g.velocity[0],
+                &g.velocity[1],
+                if g.planar { empty } else { &g.velocity[2] },
+            ],
+        },
+    )
+}
+
 /// Replays a log: up to `opts.at` if given, else to its end.
 pub fn replay_log(path: &Path, opts: &ReplayOptions) -> anyhow::Result<(ReplayOutcome, Replay)> {
     if let Some(t) = opts.at
@@ -144,7 +188,10 @@ pub fn replay_log(path: &Path, opts: &ReplayOptions) -> anyhow::Result<(ReplayOu
         end_time: 0.0,
         particles: 0,
         stats: None,
+        gas_times: Vec::new(),
+        gas_at: None,
     };
+    let mut gas_at = None;
     // Whether the replay ran to the end of the log (not stopped at `at`).
     let mut reached_end = true;
     let mut blocks = 0u64;
@@ -201,6 +248,16 @@ pub fn replay_log(path: &Path, opts: &ReplayOptions) -> anyhow::Result<(ReplayOu
                 replay
                     .set_states(&h, &v)
                     .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+            }
+            Block::Gas(g) => {
+                if opts.at.is_some_and(|t| g.time > t) {
+                    reached_end = false;
+                    break;
+                }
+                outcome.gas_times.push(g.time);
+                if opts.at == Some(g.time) {
+                    gas_at = Some(g);
+                }
             }
             Block::Checkpoint(h, particles) => {
                 if opts.at.is_some_and(|t| h.time > t) {
@@ -263,6 +320,7 @@ pub fn replay_log(path: &Path, opts: &ReplayOptions) -> anyhow::Result<(ReplayOu
         s.duration = replay.time;
     }
     outcome.stats = stats;
+    outcome.gas_at = gas_at;
     Ok((outcome, replay))
 }
 

@@ -31,7 +31,7 @@ fn block_counts(log: &Path) -> (usize, usize, usize) {
             Block::Velocities(..) => counts.0 += 1,
             Block::States(..) => counts.1 += 1,
             Block::Checkpoint(..) => counts.2 += 1,
-            Block::Records(_) => {}
+            Block::Records(_) | Block::Gas(_) => {}
         }
     }
     counts
@@ -140,6 +140,22 @@ fn replay_at_a_time_of_a_gas_run_is_the_engine_state_then() {
             assert_eq!(bits(g.state.vel), bits(e.vel), "particle {id}");
         }
     }
+    // The gas fields at a checkpoint time: in the outcome, and written as
+    // VTK by `edpm replay --at`.
+    let opts = ReplayOptions {
+        at: Some(0.01),
+        out: Some(dir.clone()),
+        ..Default::default()
+    };
+    let (outcome, _) = replay_log(&log, &opts).unwrap();
+    let gas = outcome
+        .gas_at
+        .expect("a gas block at 0.01 s (a checkpoint)");
+    assert_eq!(gas.time, 0.01);
+    assert_eq!(gas.pressure.len(), 15 * 45);
+    edpm::replay::replay_cli(&log, &opts).unwrap();
+    let vtk = std::fs::read(dir.join("gas_at_0.01.vtk")).unwrap();
+    assert!(vtk.starts_with(b"# vtk DataFile"), "a legacy VTK file");
     std::fs::remove_dir_all(dir).unwrap();
 }
 

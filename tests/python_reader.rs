@@ -40,7 +40,7 @@ fn rust_counts(log: &Path) -> (u64, u64) {
         match block {
             Block::Records(r) => records += r.len() as u64,
             Block::Checkpoint(..) => checkpoints += 1,
-            Block::Velocities(..) | Block::States(..) => {}
+            Block::Velocities(..) | Block::States(..) | Block::Gas(_) => {}
         }
     }
     assert_eq!(

@@ -38,7 +38,7 @@ BLOCK_MAGIC = b"BLK\0"
 FILE_HEADER_BYTES = 32
 BLOCK_HEADER_BYTES = 24
 CHECKPOINT_HEADER_BYTES = 24
-KIND_RECORDS, KIND_CHECKPOINT, KIND_END, KIND_VELOCITIES, KIND_STATES = 1, 2, 3, 4, 5
+KIND_RECORDS, KIND_CHECKPOINT, KIND_END, KIND_VELOCITIES, KIND_STATES, KIND_GAS = range(1, 7)
 END_BYTES = 16
 SET_HEADER_BYTES = 16
 VELOCITY_ENTRY_BYTES, STATE_ENTRY_BYTES = 32, 80
@@ -215,7 +215,8 @@ def read_log(path, use_numpy=None):
     except (IndexError, UnicodeDecodeError, struct.error) as e:
         raise LogError(f"{path}: malformed file header ({e})") from None
 
-    record_blocks, checkpoints, sets, truncated_at, end_block = [], [], [], None, None
+    record_blocks, checkpoints, sets, gas_times = [], [], [], []
+    truncated_at, end_block = None, None
     at = end
     seq_expected = 0
     while at < len(data):
@@ -231,7 +232,8 @@ def read_log(path, use_numpy=None):
                 (kind == KIND_CHECKPOINT and length == CHECKPOINT_HEADER_BYTES + count * PARTICLE_BYTES) or
                 (kind == KIND_END and length == END_BYTES and count == 0) or
                 (kind == KIND_VELOCITIES and length == SET_HEADER_BYTES + count * VELOCITY_ENTRY_BYTES) or
-                (kind == KIND_STATES and length == SET_HEADER_BYTES + count * STATE_ENTRY_BYTES)):
+                (kind == KIND_STATES and length == SET_HEADER_BYTES + count * STATE_ENTRY_BYTES) or
+                (kind == KIND_GAS and length >= count * 24)):
             raise LogError(f"{path}: malformed block (unknown kind or size) at byte offset {at}")
         body = at + BLOCK_HEADER_BYTES
         if len(data) - body < length:
@@ -256,7 +258,11 @@ def read_log(path, use_numpy=None):
             end_block = {"records": records, "time": time}
             at = body + length
             break
-        if kind in (KIND_VELOCITIES, KIND_STATES):
+        if kind == KIND_GAS:
+            # The gas fields at a checkpoint (bincode; see docs/event-log.md):
+            # only their time is decoded here.
+            gas_times.append(struct.unpack_from("<d", payload)[0])
+        elif kind in (KIND_VELOCITIES, KIND_STATES):
             time, clock = struct.unpack_from("<2d", payload)
             layout = ((VELOCITY_STRUCT, VELOCITY_FIELDS) if kind == KIND_VELOCITIES
                       else (STATE_STRUCT, STATE_FIELDS))
@@ -290,6 +296,7 @@ def read_log(path, use_numpy=None):
         log["records"] = _concat_columns(record_blocks, RECORD_FIELDS)
     log["checkpoints"] = checkpoints
     log["sets"] = sets
+    log["gas_times"] = gas_times
     log["truncated_at"] = truncated_at
     log["end"] = end_block
     log["reader"] = "numpy" if use_numpy else "struct"

@@ -7,7 +7,8 @@
 //!               header CRC-32 u32, 12 reserved bytes
 //! header        bincode (serde, fixed-int, little-endian) of LogHeader
 //! block*        24-byte block header: magic "BLK\0", kind u32 (1 records,
-//!               2 checkpoint, 3 end, 4 velocities, 5 states), count u32, payload length u32, CRC-32
+//!               2 checkpoint, 3 end, 4 velocities, 5 states, 6 gas),
+//!               count u32, payload length u32, CRC-32
 //!               u32 (of kind, count, length, sequence and payload),
 //!               sequence number u32 (0, 1, 2, … in file order); then the
 //!               payload
@@ -21,7 +22,10 @@
 //! (gas runs: the velocities after each flow step's gas kicks) or a states
 //! block (soft and hybrid runs: every state after each flow step) is a
 //! [`SetHeader`] followed by `count` entries of [`VELOCITY_ENTRY_BYTES`]
-//! or [`STATE_ENTRY_BYTES`] bytes: an id and the values replay sets.
+//! or [`STATE_ENTRY_BYTES`] bytes: an id and the values replay sets. A
+//! gas block (with each checkpoint of a gas run) holds the gas fields
+//! ([`GasBlock`], bincode), for `replay --at`'s VTK files; replay itself
+//! never needs them.
 //! Blocks are written
 //! whole and flushed, so a killed run leaves a log that reads up to its
 //! last complete block; the sequence numbers and the end block expose a
@@ -66,6 +70,7 @@ const KIND_CHECKPOINT: u32 = 2;
 const KIND_END: u32 = 3;
 const KIND_VELOCITIES: u32 = 4;
 const KIND_STATES: u32 = 5;
+const KIND_GAS: u32 = 6;
 /// Bytes of the header of a velocities or states block ([`SetHeader`]).
 pub const SET_HEADER_BYTES: usize = 16;
 /// Bytes of one velocities entry: id u64, velocity 3 × f64.
@@ -435,6 +440,17 @@ impl LogWriter {
         self.set_block(KIND_STATES, STATE_ENTRY_BYTES, payload)
     }
 
+    /// Writes a gas block (after flushing pending records).
+    pub fn gas(&mut self, g: &GasBlock) -> anyhow::Result<()> {
+        self.flush()?;
+        let payload = bincode::serde::encode_to_vec(g, config()).context("encoding gas block")?;
+        let count = u32::try_from(g.gas_fraction.len()).context("too many gas cells")?;
+        let header = block_header(KIND_GAS, count, self.next_sequence()?, &payload)?;
+        self.file.write_all(&[&header[..], &payload].concat())?;
+        self.bytes += (BLOCK_HEADER_BYTES + payload.len()) as u64;
+        Ok(())
+    }
+
     fn set_block(&mut self, kind: u32, entry: usize, payload: Vec<u8>) -> anyhow::Result<()> {
         self.flush()?;
         let count = u32::try_from((payload.len() - SET_HEADER_BYTES) / entry)
@@ -553,6 +569,29 @@ pub enum Block {
     /// States set on the particles named (position, velocity, angular
     /// velocity, as in records).
     States(SetHeader, Vec<(u64, [f64; 9])>),
+    /// The gas fields at a checkpoint of a gas run.
+    Gas(Box<GasBlock>),
+}
+
+/// The gas fields of a gas run at a time (SI units), written with each
+/// checkpoint: the payload of a gas block (bincode, as the header).
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct GasBlock {
+    /// Absolute time (s).
+    pub time: f64,
+    /// Grid: lower corner (m), cell size (m), cells per axis, periodic
+    /// axes, planar mode (as `crate::domain::grid::GridGeometry`).
+    pub lo: DVec3,
+    pub h: DVec3,
+    pub n: [u64; 3],
+    pub periodic: [bool; 3],
+    pub planar: bool,
+    /// Per cell: gas fraction, pressure (Pa), density (kg/m³).
+    pub gas_fraction: Vec<f64>,
+    pub pressure: Vec<f64>,
+    pub density: Vec<f64>,
+    /// Interstitial velocity normal to the faces of each axis (m/s).
+    pub velocity: [Vec<f64>; 3],
 }
 
 /// When the values of a velocities or states block apply: absolute time
@@ -779,6 +818,8 @@ impl LogReader {
             KIND_END => len == END_BYTES && count == 0,
             KIND_VELOCITIES => len == SET_HEADER_BYTES + count * VELOCITY_ENTRY_BYTES,
             KIND_STATES => len == SET_HEADER_BYTES + count * STATE_ENTRY_BYTES,
+            // Its cells times the cell fields, at least.
+            KIND_GAS => len >= count * 3 * 8,
             _ => false,
         };
         if !consistent {
@@ -830,6 +871,15 @@ impl LogReader {
                 records.clear();
                 records.extend(payload.chunks_exact(RECORD_BYTES).map(LogRecord::decode));
                 Block::Records(records)
+            }
+            KIND_GAS => {
+                let g: GasBlock = crate::io::container::decode_bounded(payload)
+                    .map(|(g, _)| g)
+                    .map_err(|_| malformed("gas block"))?;
+                if g.gas_fraction.len() != count {
+                    return Err(malformed("gas block (cell count)"));
+                }
+                Block::Gas(Box::new(g))
             }
             KIND_VELOCITIES | KIND_STATES => {
                 let f = |b: &[u8], at: usize| {

@@ -11,7 +11,7 @@ use glam::DVec3;
 use super::{Recorder, RunEnd, StepEnd};
 use crate::engine::Engine;
 use crate::io::eventlog::{
-    CheckpointHeader, LogHeader, LogRecord, LogWriter, RecordKind, checkpoint_particles,
+    CheckpointHeader, GasBlock, LogHeader, LogRecord, LogWriter, RecordKind, checkpoint_particles,
 };
 use crate::particles::NewParticle;
 use crate::queue::EventQueue;
@@ -131,7 +131,7 @@ impl<Q: EventQueue> Recorder<Q> for EventLog {
     fn end_step(
         &mut self,
         engine: &mut Engine<Q>,
-        _gas: Option<&mut crate::gas::flow::GasRun>,
+        gas: Option<&mut crate::gas::flow::GasRun>,
         end: &StepEnd,
     ) -> anyhow::Result<()> {
         if self.soft {
@@ -148,7 +148,23 @@ impl<Q: EventQueue> Recorder<Q> for EventLog {
             step: end.step,
         };
         self.writer
-            .checkpoint(header, &checkpoint_particles(engine.stored_particles()))
+            .checkpoint(header, &checkpoint_particles(engine.stored_particles()))?;
+        if let Some(g) = gas {
+            let (gas, grid) = (&g.gas, &g.gas.grid);
+            self.writer.gas(&GasBlock {
+                time: engine.time(),
+                lo: grid.lo,
+                h: grid.h,
+                n: grid.n.map(|k| k as u64),
+                periodic: grid.periodic,
+                planar: grid.planar,
+                gas_fraction: gas.gas_fraction.clone(),
+                pressure: gas.pressure.clone(),
+                density: gas.density.clone(),
+                velocity: gas.velocity.clone(),
+            })?;
+        }
+        Ok(())
     }
 
     fn finish(&mut self, engine: &mut Engine<Q>, end: &mut RunEnd) -> anyhow::Result<()> {
