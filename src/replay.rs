@@ -191,7 +191,6 @@ pub fn replay_log(path: &Path, opts: &ReplayOptions) -> anyhow::Result<(ReplayOu
         gas_times: Vec::new(),
         gas_at: None,
     };
-    let mut gas_at = None;
     // Whether the replay ran to the end of the log (not stopped at `at`).
     let mut reached_end = true;
     let mut blocks = 0u64;
@@ -228,37 +227,6 @@ pub fn replay_log(path: &Path, opts: &ReplayOptions) -> anyhow::Result<(ReplayOu
                 }
                 reader.recycle(records);
             }
-            Block::Velocities(h, v) => {
-                // The velocities after the gas kicks at the start of a
-                // flow step: at T itself they are the next step's.
-                if opts.at.is_some_and(|t| h.time >= t) {
-                    reached_end = false;
-                    break;
-                }
-                replay
-                    .set_velocities(&h, &v)
-                    .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-            }
-            Block::States(h, v) => {
-                // The states at the end of a flow step (soft and hybrid).
-                if opts.at.is_some_and(|t| h.time > t) {
-                    reached_end = false;
-                    break;
-                }
-                replay
-                    .set_states(&h, &v)
-                    .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-            }
-            Block::Gas(g) => {
-                if opts.at.is_some_and(|t| g.time > t) {
-                    reached_end = false;
-                    break;
-                }
-                outcome.gas_times.push(g.time);
-                if opts.at == Some(g.time) {
-                    gas_at = Some(g);
-                }
-            }
             Block::Checkpoint(h, particles) => {
                 if opts.at.is_some_and(|t| h.time > t) {
                     reached_end = false;
@@ -277,6 +245,14 @@ pub fn replay_log(path: &Path, opts: &ReplayOptions) -> anyhow::Result<(ReplayOu
                     replay
                         .load_checkpoint(&h, &particles)
                         .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+                }
+            }
+            other => {
+                let applied = apply_set_block(other, opts.at, &mut replay, &mut outcome)
+                    .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+                if !applied {
+                    reached_end = false;
+                    break;
                 }
             }
         }
@@ -320,8 +296,36 @@ pub fn replay_log(path: &Path, opts: &ReplayOptions) -> anyhow::Result<(ReplayOu
         s.duration = replay.time;
     }
     outcome.stats = stats;
-    outcome.gas_at = gas_at;
     Ok((outcome, replay))
+}
+
+/// Applies a velocities, states or gas block; `Ok(false)`, applying
+/// nothing, when the block lies after `at` (the replay stops there).
+fn apply_set_block(
+    block: Block,
+    at: Option<f64>,
+    replay: &mut Replay,
+    outcome: &mut ReplayOutcome,
+) -> Result<bool, String> {
+    match block {
+        // The velocities after the gas kicks at the start of a flow step:
+        // at T itself they are the next step's.
+        Block::Velocities(h, v) if at.is_none_or(|t| h.time < t) => {
+            replay.set_velocities(&h, &v)?
+        }
+        // The states at the end of a flow step (soft and hybrid).
+        Block::States(h, v) if at.is_none_or(|t| h.time <= t) => replay.set_states(&h, &v)?,
+        Block::Gas(g) if at.is_none_or(|t| g.time <= t) => {
+            outcome.gas_times.push(g.time);
+            if at == Some(g.time) {
+                outcome.gas_at = Some(g);
+            }
+        }
+        // `replay_log` applies these itself.
+        Block::Records(_) | Block::Checkpoint(..) => {}
+        _ => return Ok(false),
+    }
+    Ok(true)
 }
 
 /// Streaming histogram on log-spaced bins, 10 per decade from 1e-6 to 1e3.

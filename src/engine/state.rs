@@ -166,7 +166,7 @@ impl<Q: EventQueue> Engine<Q> {
             return Err("slot numbers beyond the particle table".into());
         }
         for (i, s) in state.slots.iter().enumerate().filter(|(_, s)| s.active) {
-            if s.radius > self.r_max || !(s.radius > 0.0) {
+            if !(s.radius > 0.0 && s.radius <= self.r_max) {
                 return Err(format!(
                     "particle {} has radius {} m, outside (0, {}] m of this scenario's grid",
                     s.id, s.radius, self.r_max

@@ -433,14 +433,7 @@ fn simulate<Q: EventQueue>(
     let wall_start = Instant::now();
     let cpu_start = crate::timing::cpu_time();
     let mut engine = build_engine::<Q>(s)?;
-    if (s.output.restart_interval.is_some() || opts.restart.is_some())
-        && s.engine.model != ContactModel::Hard
-    {
-        anyhow::bail!(
-            "{}: restart files (output.restart_interval, --restart) of soft and hybrid runs are not supported yet: the soft contacts' history is not stored",
-            s.name
-        );
-    }
+    restart::check_model(s, opts.restart.is_some())?;
     let mut gas = GasRun::new(s);
     if let Some(g) = gas.as_mut() {
         g.initialise(&engine);
@@ -458,13 +451,14 @@ fn simulate<Q: EventQueue>(
     let fingerprint = restart::scenario_fingerprint(s, &initial);
     let mut feeder = InletFeeder::new(s);
     // Restarted: the run id stays that of the run from the initial state.
-    let mut first_step = 0;
-    if let Some(path) = &opts.restart {
-        outdir::check_restart_path(path, out_dir, opts.log.as_deref())?;
-        let file = restart::read(path, s, fingerprint)?;
-        first_step = file.step;
-        restart::restore(path, file, &mut engine, gas.as_mut(), feeder.as_mut())?;
-    }
+    let first_step = match &opts.restart {
+        Some(path) => {
+            outdir::check_restart_path(path, out_dir, opts.log.as_deref())?;
+            let file = restart::read(path, s, fingerprint)?;
+            restart::restore(path, file, &mut engine, gas.as_mut(), feeder.as_mut())?
+        }
+        None => 0,
+    };
     std::fs::create_dir_all(out_dir).with_context(|| format!("creating {}", out_dir.display()))?;
     outdir::clear_outputs(out_dir)?;
     outdir::write_manifest(
