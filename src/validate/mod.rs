@@ -16,12 +16,14 @@
 //! Stage 7: the KTGF cases go through the analysis code of `edpm analyse`
 //! ([`crate::analysis::ktgf`]), as the tests do.
 
+pub mod accuracy;
 pub mod collisions;
 pub mod fluidization;
 pub mod gas_flow;
 pub mod homogeneous;
 pub mod ktgf;
 pub mod report;
+pub mod stress;
 
 use std::path::PathBuf;
 
