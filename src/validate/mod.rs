@@ -23,6 +23,7 @@ pub mod gas_flow;
 pub mod homogeneous;
 pub mod ktgf;
 pub mod report;
+pub mod riser;
 pub mod stress;
 
 use std::path::PathBuf;
@@ -240,6 +241,7 @@ pub fn catalogue() -> Vec<Case> {
     cases.extend(gas_flow::cases());
     cases.extend(fluidization::cases());
     cases.extend(ktgf::cases());
+    cases.extend(riser::cases());
     cases
 }
 
