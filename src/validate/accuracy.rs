@@ -288,17 +288,47 @@ pub fn studies() -> Vec<Study> {
                         &["engine.model=soft", "collisions.tc=0"],
                     ),
                 ),
+            ],
+            reference: setting("hard, TC off", &["collisions.tc=0"]),
+            note: "hard spheres, the infinitely stiff limit of binary collisions (the start-up is collisional, with short enduring contacts only on the distributor)",
+        },
+        Study {
+            knob: "hybrid",
+            base: Base::FluidizedBed,
+            measure: Measure::CentreOfMassFall,
+            lines: vec![
                 line(
                     "hybrid, by hybrid_collisions",
                     sweep(
                         "engine.soft.hybrid_collisions",
-                        &["10", "25", "50", "100", "200"],
-                        &["engine.model=hybrid", "collisions.tc=0"],
+                        &["5", "10", "25", "50", "100", "300"],
+                        &[
+                            GUARD_CASE,
+                            &[
+                                "engine.model=hybrid",
+                                "collisions.max_collisions_per_step=1000",
+                            ],
+                        ]
+                        .concat(),
                     ),
                 ),
+                line(
+                    "hard, collapse guard at 30",
+                    vec![setting(
+                        "hard, max_collisions_per_step = 30",
+                        &[GUARD_CASE, &["collisions.max_collisions_per_step=30"]].concat(),
+                    )],
+                ),
             ],
-            reference: setting("hard, TC off", &["collisions.tc=0"]),
-            note: "hard spheres, the infinitely stiff limit of binary collisions (the start-up is collisional, with short enduring contacts only on the distributor)",
+            reference: Setting {
+                label: "soft everywhere (max_overlap 0.01, 20 steps per contact)".into(),
+                overrides: GUARD_CASE
+                    .iter()
+                    .chain(&["engine.model=soft"])
+                    .map(|s| s.to_string())
+                    .collect(),
+            },
+            note: "soft spheres everywhere, which the hybrid approaches as its switch (a particle's collisions per flow step) goes down; on the guard's case (e_n = 0.5, TC off, 0.3 s), where enduring contacts form. At e_n = 0.9 over 0.05 s no particle switched (every hybrid run equals the hard one)",
         },
         Study {
             knob: "grid",
