@@ -394,14 +394,14 @@ pub fn studies() -> Vec<Study> {
                     .collect(),
             )],
             reference: setting(
-                "tolerance = 1e-13",
+                "tolerance = 1e-12",
                 &[
-                    "gas.linear_tolerance=1e-13",
-                    "gas.mass_tolerance=1e-13",
+                    "gas.linear_tolerance=1e-12",
+                    "gas.mass_tolerance=1e-12",
                     "gas.max_outer_iterations=100",
                 ],
             ),
-            note: "converged: 1e-13, near round-off",
+            note: "converged: 1e-12, near round-off (at 1e-13 the mass residual stalls at 2.3e-13 and the run stops)",
         },
     ]
 }
