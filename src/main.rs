@@ -218,6 +218,16 @@ enum Command {
         /// Multiply every tolerance (for testing the exit status).
         #[arg(long, default_value_t = 1.0, hide = true)]
         tolerance_scale: f64,
+        /// Instead of the catalogue: run time against error for one
+        /// numerical knob (or `all`), tables and charts into --out
+        /// (results/accuracy/README.md).
+        #[arg(long, value_name = "KNOB", conflicts_with = "stress")]
+        accuracy: Option<String>,
+        /// Instead of the catalogue: the stability suite (CASES: setups
+        /// to run; --quick leaves out the run of 1e8 events); stress.md
+        /// and stress.json into --out.
+        #[arg(long)]
+        stress: bool,
     },
     /// Elastic smooth spheres in a periodic cube; prints one JSON line.
     Bench {
@@ -455,11 +465,32 @@ fn main() -> ExitCode {
             compare_out.as_deref(),
         ),
         Command::Validate {
+            out,
+            accuracy: Some(knob),
+            ..
+        } => edpm::validate::accuracy::accuracy_cli(&knob, &out),
+        Command::Validate {
+            cases,
+            quick,
+            out,
+            stress: true,
+            ..
+        } => edpm::validate::stress::stress_cli(
+            &cases,
+            if quick {
+                edpm::validate::Mode::Quick
+            } else {
+                edpm::validate::Mode::Full
+            },
+            &out,
+        ),
+        Command::Validate {
             cases,
             quick,
             out,
             list,
             tolerance_scale,
+            ..
         } => edpm::validate::validate_cli(&edpm::validate::ValidateOptions {
             cases,
             mode: validate_mode(quick),

@@ -4,7 +4,7 @@
 //! ([`feeder`]), apply the velocity kicks of the external forces (first
 //! order: a full kick before the flight; second order: half kicks before
 //! and after; gas runs: the drag, pressure-gradient and gravity kicks of
-//! the gas step), process every collision in straight-line flight to the
+//! the gas step, split the same way, see [`GasRun::step_split`]), process every collision in straight-line flight to the
 //! end of the step, then synchronise all particles. Sanity checks after
 //! each stage ([`diagnose`]) stop a run that goes wrong, with the likely
 //! causes. Everything written goes through the [`recorders`].
@@ -339,8 +339,10 @@ impl<Q: EventQueue> FlowLoop<'_, Q> {
             Splitting::SecondOrder => 0.5,
         };
         if let Some(g) = self.gas.as_mut() {
-            // Drag, pressure gradient and gravity as one first-order kick.
-            if let Err(e) = g.step(&mut self.engine, dt) {
+            // Drag, pressure gradient and gravity: one kick, or its first
+            // half (second order; the second follows the flight).
+            let half = s.time.splitting == Splitting::SecondOrder;
+            if let Err(e) = g.step_split(&mut self.engine, dt, half) {
                 anyhow::bail!(
                     "{}: gas phase: {e}; {}",
                     s.name,
@@ -404,12 +406,12 @@ impl<Q: EventQueue> FlowLoop<'_, Q> {
                 );
             }
         }
-        if s.time.splitting == Splitting::SecondOrder
-            && gravity != DVec3::ZERO
-            && self.gas.is_none()
-            && !self.engine.integrates_gravity()
-        {
-            self.kick_all(gravity * (0.5 * dt))?;
+        if s.time.splitting == Splitting::SecondOrder {
+            if let Some(g) = self.gas.as_mut() {
+                g.finish_kicks(&mut self.engine);
+            } else if gravity != DVec3::ZERO && !self.engine.integrates_gravity() {
+                self.kick_all(gravity * (0.5 * dt))?;
+            }
         }
         for r in self.recorders.iter_mut() {
             r.end_step(&mut self.engine, self.gas.as_mut(), &end)?;

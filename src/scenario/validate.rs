@@ -203,12 +203,6 @@ pub(crate) fn validate(ctx: &Ctx, raw: RawScenario) -> R<Scenario> {
         Some(g) => Some(super::gas::validate_gas(ctx, g, &domain, &boundaries)?),
         None => None,
     };
-    if gas.is_some() && time.splitting == Splitting::SecondOrder {
-        return Err(ctx.err(
-            "time.splitting",
-            "must be \"first-order\" with [gas]: drag, pressure-gradient and gravity kicks are applied once per flow step after the gas step".to_string(),
-        ));
-    }
 
     let mut scenario = Scenario {
         name: ctx.file.to_string(),

@@ -16,12 +16,15 @@
 //! Stage 7: the KTGF cases go through the analysis code of `edpm analyse`
 //! ([`crate::analysis::ktgf`]), as the tests do.
 
+pub mod accuracy;
 pub mod collisions;
 pub mod fluidization;
 pub mod gas_flow;
 pub mod homogeneous;
 pub mod ktgf;
 pub mod report;
+pub mod riser;
+pub mod stress;
 
 use std::path::PathBuf;
 
@@ -238,6 +241,7 @@ pub fn catalogue() -> Vec<Case> {
     cases.extend(gas_flow::cases());
     cases.extend(fluidization::cases());
     cases.extend(ktgf::cases());
+    cases.extend(riser::cases());
     cases
 }
 

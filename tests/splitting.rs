@@ -1,0 +1,147 @@
+//! Kick splitting with gas (`time.splitting`, `GasRun::step_split`): a
+//! sphere settling from rest in a gas at rest, against the exact solution
+//! of its equation of motion. First-order splitting must converge at
+//! O(dt), second-order at O(dt²).
+
+use edpm::gas::DragLaw;
+use edpm::gas::drag::particle_drag_coefficient;
+use edpm::io::output::CsvColumns;
+use edpm::queue::CalendarQueue;
+use edpm::run::{build_engine, run_scenario};
+use edpm::scenario::Scenario;
+
+const D: f64 = 1e-3; // particle diameter (m)
+const RHO_P: f64 = 2500.0; // kg/m³
+const RHO_G: f64 = 1e-3; // kg/m³: Re ~ 3e-5, so the drag is Stokes' to 1e-4
+const MU: f64 = 6.9e-3; // Pa s: relaxation time τ = ρ_p d²/(18 μ) ≈ 0.02 s
+const G: f64 = 9.81;
+const T_END: f64 = 0.1;
+
+fn scenario(dt: f64, splitting: &str) -> Scenario {
+    let text = format!(
+        r#"
+seed = 3
+[domain]
+lo = [0.0, 0.0, 0.0]
+hi = [0.01, 0.05, 0.01]
+gravity = [0.0, -{G}, 0.0]
+[boundaries]
+wall_material = "wall"
+[[materials]]
+name = "p"
+density = {RHO_P}
+[[materials]]
+name = "wall"
+[collisions]
+default = {{ e_n = 1.0, beta_0 = 0.0, mu = 0.0 }}
+[[particles]]
+name = "p"
+material = "p"
+count = 1
+diameter = {D}
+placement = "random"
+region = {{ lo = [0.004, 0.038, 0.004], hi = [0.006, 0.04, 0.006] }}
+[time]
+t_end = {T_END}
+dt_flow = {dt}
+splitting = "{splitting}"
+[output]
+sample_interval = {T_END}
+[gas]
+model = "incompressible"
+density = {RHO_G}
+viscosity = {MU}
+cells = [1, 2, 1]
+coupling = "one-way"
+# At ρ_g = 1e-3 kg/m³ the mass residual stalls at ~1e-10 (round-off).
+mass_tolerance = 1e-8
+[gas.faces]
+y_hi = "outlet"
+"#
+    );
+    Scenario::from_str_named(&text, "splitting.toml", &[]).expect("scenario")
+}
+
+/// Start and end heights (m) of the particle.
+fn fall(dt: f64, splitting: &str) -> (f64, f64) {
+    let s = scenario(dt, splitting);
+    let engine = build_engine::<CalendarQueue>(&s).expect("engine");
+    let y0 = engine.particles().next().expect("one particle").pos.y;
+    let dir = std::env::temp_dir().join(format!(
+        "edpm-splitting-{splitting}-{dt:e}-{}",
+        std::process::id()
+    ));
+    run_scenario(&s, &dir, false).expect("run");
+    let csv = CsvColumns::read(&dir.join("final_particles.csv")).expect("csv");
+    let _ = std::fs::remove_dir_all(&dir);
+    let k = csv.column("y_m").expect("y_m column");
+    (y0, csv.rows[0][k])
+}
+
+/// The fall (m) over `T_END` from rest, by RK4 with 10⁵ steps of the same
+/// equation `m v' = −K(|v|) v + m g − V ρ_g g` (gas at rest, hydrostatic
+/// pressure; K at gas fraction 1, as one-way coupling sees it). Its error
+/// is far below 1e-12 m.
+fn exact_fall() -> f64 {
+    let m = RHO_P * std::f64::consts::PI * D.powi(3) / 6.0;
+    let buoyant_g = G * (1.0 - RHO_G / RHO_P);
+    let accel = |v: f64| {
+        let k = particle_drag_coefficient(DragLaw::ErgunWenYu, 1.0, RHO_G, MU, D, v.abs());
+        buoyant_g - k * v / m
+    };
+    let n = 100_000;
+    let h = T_END / n as f64;
+    let (mut x, mut v) = (0.0, 0.0);
+    for _ in 0..n {
+        let (k1x, k1v) = (v, accel(v));
+        let (k2x, k2v) = (v + 0.5 * h * k1v, accel(v + 0.5 * h * k1v));
+        let (k3x, k3v) = (v + 0.5 * h * k2v, accel(v + 0.5 * h * k2v));
+        let (k4x, k4v) = (v + h * k3v, accel(v + h * k3v));
+        x += h / 6.0 * (k1x + 2.0 * k2x + 2.0 * k3x + k4x);
+        v += h / 6.0 * (k1v + 2.0 * k2v + 2.0 * k3v + k4v);
+    }
+    x
+}
+
+/// Errors (m) of the fall at dt = 4, 2, 1 ms.
+fn errors(splitting: &str) -> Vec<f64> {
+    let exact = exact_fall();
+    [4e-3, 2e-3, 1e-3]
+        .iter()
+        .map(|&dt| {
+            let (y0, y1) = fall(dt, splitting);
+            let e = (y0 - y1) - exact;
+            eprintln!(
+                "{splitting}: dt = {dt:e} s: fall {:.9e} m, error {e:.3e} m",
+                y0 - y1
+            );
+            e
+        })
+        .collect()
+}
+
+#[test]
+fn settling_with_gas_first_order_splitting_converges_at_order_one() {
+    let e = errors("first-order");
+    // O(dt): the leading error is dt v_t (1 − e^{−t/τ})/2 ≈ 3.9e-4 m at
+    // 4 ms (GasRun::step_split); halving dt halves it, to within the
+    // O(dt²) remainder (λ = dt/τ ≤ 0.2, so ratios in [1.8, 2.2]).
+    for w in e.windows(2) {
+        let ratio = w[0] / w[1];
+        assert!((1.8..2.2).contains(&ratio), "ratio {ratio}: {e:?}");
+    }
+    assert!((2.5e-4..5e-4).contains(&e[0].abs()), "{e:?}");
+}
+
+#[test]
+fn settling_with_gas_second_order_splitting_converges_at_order_two() {
+    let e = errors("second-order");
+    // O(dt²): λ²/12 per step (GasRun::step_split), ≈ 1e-5 m at 4 ms:
+    // halving dt quarters it (ratios in [3.5, 4.5] allow the O(dt³) rest
+    // at λ = 0.2), and it is at least 20 times below first order.
+    for w in e.windows(2) {
+        let ratio = w[0] / w[1];
+        assert!((3.5..4.5).contains(&ratio), "ratio {ratio}: {e:?}");
+    }
+    assert!(e[0].abs() < 2e-5, "{e:?}");
+}
