@@ -203,32 +203,7 @@ enum Command {
     /// Run the validation catalogue (docs/validation.md): each case
     /// against its reference; writes report.md, report.json and figures,
     /// and fails if a case fails.
-    Validate {
-        /// Cases to run, by name (default: all; --list shows them).
-        cases: Vec<String>,
-        /// Reduced version of every case (a few minutes of CPU).
-        #[arg(long)]
-        quick: bool,
-        /// Report directory.
-        #[arg(long, default_value = "out/validate")]
-        out: PathBuf,
-        /// List the cases and exit.
-        #[arg(long)]
-        list: bool,
-        /// Multiply every tolerance (for testing the exit status).
-        #[arg(long, default_value_t = 1.0, hide = true)]
-        tolerance_scale: f64,
-        /// Instead of the catalogue: run time against error for one
-        /// numerical knob (or `all`), tables and charts into --out
-        /// (results/accuracy/README.md).
-        #[arg(long, value_name = "KNOB", conflicts_with = "stress")]
-        accuracy: Option<String>,
-        /// Instead of the catalogue: the stability suite (CASES: setups
-        /// to run; --quick leaves out the run of 1e8 events); stress.md
-        /// and stress.json into --out.
-        #[arg(long)]
-        stress: bool,
-    },
+    Validate(ValidateArgs),
     /// Elastic smooth spheres in a periodic cube; prints one JSON line.
     Bench {
         /// Particle count (rounded to 4 k³ for the FCC start).
@@ -376,6 +351,53 @@ fn bench_cli(opts: &BenchOptions) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// Arguments of `edpm validate`.
+#[derive(clap::Args)]
+struct ValidateArgs {
+    /// Cases to run, by name (default: all; --list shows them).
+    cases: Vec<String>,
+    /// Reduced version of every case (a few minutes of CPU).
+    #[arg(long)]
+    quick: bool,
+    /// Report directory.
+    #[arg(long, default_value = "out/validate")]
+    out: PathBuf,
+    /// List the cases and exit.
+    #[arg(long)]
+    list: bool,
+    /// Multiply every tolerance (for testing the exit status).
+    #[arg(long, default_value_t = 1.0, hide = true)]
+    tolerance_scale: f64,
+    /// Instead of the catalogue: run time against error for one
+    /// numerical knob (or `all`), tables and charts into --out
+    /// (results/accuracy/README.md).
+    #[arg(long, value_name = "KNOB", conflicts_with = "stress")]
+    accuracy: Option<String>,
+    /// Instead of the catalogue: the stability suite (CASES: setups
+    /// to run; --quick leaves out the run of 1e8 events); stress.md
+    /// and stress.json into --out.
+    #[arg(long)]
+    stress: bool,
+}
+
+/// `edpm validate`: the catalogue, or `--accuracy KNOB`, or `--stress`.
+fn validate_command(a: ValidateArgs) -> anyhow::Result<()> {
+    let mode = validate_mode(a.quick);
+    if let Some(knob) = a.accuracy {
+        return edpm::validate::accuracy::accuracy_cli(&knob, &a.out);
+    }
+    if a.stress {
+        return edpm::validate::stress::stress_cli(&a.cases, mode, &a.out);
+    }
+    edpm::validate::validate_cli(&edpm::validate::ValidateOptions {
+        cases: a.cases,
+        mode,
+        out: a.out,
+        list: a.list,
+        tolerance_scale: a.tolerance_scale,
+    })
+}
+
 /// Turns each subcommand's arguments into the library's options and runs it.
 fn main() -> ExitCode {
     let cli = Cli::parse();
@@ -464,40 +486,7 @@ fn main() -> ExitCode {
             },
             compare_out.as_deref(),
         ),
-        Command::Validate {
-            out,
-            accuracy: Some(knob),
-            ..
-        } => edpm::validate::accuracy::accuracy_cli(&knob, &out),
-        Command::Validate {
-            cases,
-            quick,
-            out,
-            stress: true,
-            ..
-        } => edpm::validate::stress::stress_cli(
-            &cases,
-            if quick {
-                edpm::validate::Mode::Quick
-            } else {
-                edpm::validate::Mode::Full
-            },
-            &out,
-        ),
-        Command::Validate {
-            cases,
-            quick,
-            out,
-            list,
-            tolerance_scale,
-            ..
-        } => edpm::validate::validate_cli(&edpm::validate::ValidateOptions {
-            cases,
-            mode: validate_mode(quick),
-            out,
-            list,
-            tolerance_scale,
-        }),
+        Command::Validate(args) => validate_command(args),
         Command::Umf {
             sweep,
             scenario,
