@@ -453,7 +453,41 @@ impl CellGrid {
     }
 
     /// As [`CellGrid::for_each_near`], around cell `c`.
-    pub fn for_each_near_cell(&self, c: [usize; 3], mut f: impl FnMut(&CellEntry, Option<u32>)) {
+    #[inline]
+    pub fn for_each_near_cell(&self, c: [usize; 3], f: impl FnMut(&CellEntry, Option<u32>)) {
+        self.for_each_in_block(c, [-1; 3], [1; 3], f);
+    }
+
+    /// As [`CellGrid::for_each_near_cell`], over the layer of 9 cells that
+    /// became adjacent when a particle entered cell `c` through a face of
+    /// `axis`, moving up (`up`) or down that axis: the cells at offset ±1
+    /// along `axis` and −1..=1 along the others. None on a non-periodic
+    /// axis past its last cell.
+    #[inline]
+    pub fn for_each_in_new_layer(
+        &self,
+        c: [usize; 3],
+        axis: usize,
+        up: bool,
+        f: impl FnMut(&CellEntry, Option<u32>),
+    ) {
+        let (mut lo, mut hi) = ([-1; 3], [1; 3]);
+        let offset = if up { 1 } else { -1 };
+        (lo[axis], hi[axis]) = (offset, offset);
+        self.for_each_in_block(c, lo, hi, f);
+    }
+
+    /// Calls `f(entry, image)` for every entry of the cells at offsets
+    /// `lo..=hi` (each within −1..=1) per axis from cell `c`, wrapping on
+    /// periodic axes, each cell once (see [`CellGrid::for_each_near`]).
+    #[inline]
+    fn for_each_in_block(
+        &self,
+        c: [usize; 3],
+        lo: [i64; 3],
+        hi: [i64; 3],
+        mut f: impl FnMut(&CellEntry, Option<u32>),
+    ) {
         // Per axis: (cell index, image component 0/1/2 for shift -L/0/+L).
         let mut ranges = [[(0usize, 1u32); 3]; 3];
         let mut counts = [0usize; 3];
@@ -461,7 +495,7 @@ impl CellGrid {
         for axis in 0..3 {
             let n = self.cells[axis];
             let mut k = 0;
-            for offset in [-1i64, 0, 1] {
+            for offset in lo[axis]..=hi[axis] {
                 let mut v = c[axis] as i64 + offset;
                 let mut image = 1;
                 if v < 0 || v >= n as i64 {

@@ -3,8 +3,9 @@
 //! time order; flow-step ends; the stall watchdog.
 
 use glam::DVec3;
+use rayon::prelude::*;
 
-use super::store::{EventKind, Kinematics, SHELL_EXIT, Scheduled};
+use super::store::{EventKind, Kinematics, PairCandidate, SHELL_EXIT, Scheduled};
 use super::{
     CollapseReport, CollisionRecord, ContactModel, Engine, NO_PARTNER, NeighbourSearch, Record,
     StallReport,
@@ -194,15 +195,25 @@ impl<Q: EventQueue> Engine<Q> {
         self.retry_pending_reinsertions();
     }
 
-    /// Re-predicts every particle from scratch.
+    /// Re-predicts every particle from scratch: the predictions (pure
+    /// functions of the state) in parallel, then queued in slot order, so
+    /// that the queue is the same whatever the thread count.
     #[inline]
     pub(super) fn predict_all(&mut self) {
         self.queue.clear();
-        for i in 0..self.kin.len() {
-            if self.active[i] {
-                self.predict(i);
+        let mut predictions = std::mem::take(&mut self.prediction_buffer);
+        let engine = &*self;
+        (0..self.kin.len())
+            .into_par_iter()
+            .with_min_len(PREDICTIONS_PER_TASK)
+            .map(|i| engine.active[i].then(|| engine.prediction(i)))
+            .collect_into_vec(&mut predictions);
+        for (i, p) in predictions.iter().enumerate() {
+            if let Some(p) = p {
+                self.apply(i, p);
             }
         }
+        self.prediction_buffer = predictions;
         self.needs_prediction = false;
     }
 
@@ -212,8 +223,92 @@ impl<Q: EventQueue> Engine<Q> {
     /// rewrite positions (which keeps event logs replayable bit for bit).
     #[inline]
     pub(super) fn predict(&mut self, i: usize) {
+        let p = self.prediction(i);
+        self.apply(i, &p);
+    }
+
+    /// Particle i's earliest event, without changing any state.
+    #[inline]
+    fn prediction(&self, i: usize) -> Prediction {
+        let ki = self.kin_now(i);
+        let (best, event) = self.boundary_event(i, &ki);
+        let mut search = PairSearch::new(self, i, ki);
+        match self.config.neighbours {
+            NeighbourSearch::Lists => {
+                search.best = best;
+                for &entry in self.lists.list(i) {
+                    search.consider(entry, &self.kin, &self.is_soft, &self.image_shift);
+                }
+            }
+            NeighbourSearch::Cells => {
+                // At least 3 cells per periodic axis: images are exact.
+                self.cells.for_each_near_cell(self.cell_of[i], |e, image| {
+                    if e.index as usize != i {
+                        let entry = neighbours::pack(e.index, image.unwrap_or(IDENTITY_IMAGE));
+                        search.consider(entry, &self.kin, &self.is_soft, &self.image_shift);
+                    }
+                });
+            }
+        }
+        self.choose(best, event, &search)
+    }
+
+    /// Stores prediction `p` of particle i and queues its event.
+    #[inline]
+    fn apply(&mut self, i: usize, p: &Prediction) {
+        if self.config.neighbours == NeighbourSearch::Cells {
+            self.pair_candidate[i] = p.candidate;
+        }
+        self.scheduled[i] = p.event;
+        self.queue.set(i as u32, self.now + p.delay);
+    }
+
+    /// Cells mode, after particle i crossed into a new cell through a face
+    /// of `axis` without wrapping: its trajectory is unchanged since its
+    /// last prediction, which covered the 18 cells still adjacent, so only
+    /// the 9 newly adjacent cells are scanned and the best pair of the
+    /// last prediction is kept (while its partner has had no event; every
+    /// particle of the old cells that had one has since scanned i's cell
+    /// itself). Otherwise, a full prediction.
+    #[inline]
+    pub(super) fn predict_after_crossing(&mut self, i: usize, axis: usize, up: bool) {
+        let kept = self.pair_candidate[i];
+        if kept.time.is_finite()
+            && self.counter[neighbours::unpack(kept.entry).0 as usize] != kept.partner_count
+        {
+            return self.predict(i);
+        }
+        let ki = self.kin_now(i);
+        let (best, event) = self.boundary_event(i, &ki);
+        let mut search = PairSearch::new(self, i, ki);
+        self.cells
+            .for_each_in_new_layer(self.cell_of[i], axis, up, |e, image| {
+                if e.index as usize != i {
+                    let entry = neighbours::pack(e.index, image.unwrap_or(IDENTITY_IMAGE));
+                    search.consider(entry, &self.kin, &self.is_soft, &self.image_shift);
+                }
+            });
+        let now = self.now;
+        if kept.time.is_finite() && !(now + search.best < kept.time) {
+            search.best = kept.time - now;
+            search.best_entry = Some(kept.entry);
+        }
+        let p = self.choose(best, event, &search);
+        self.apply(i, &p);
+    }
+
+    /// Particle i's kinematics moved to the current time (not stored).
+    #[inline]
+    fn kin_now(&self, i: usize) -> Kinematics {
         let mut ki = self.kin[i];
         ki.pos = ki.position_at(self.now);
+        ki
+    }
+
+    /// Particle i's earliest event that is not a pair collision: leaving
+    /// its shell or cell, a wall, the outlet. Returns (delay (s), event).
+    #[inline]
+    fn boundary_event(&self, i: usize, ki: &Kinematics) -> (f64, Scheduled) {
         let (mut best, mut event) = match self.config.neighbours {
             NeighbourSearch::Lists => (
                 geometry::shell_exit_time(ki.pos - self.shells[i].centre, ki.vel, self.config.skin),
@@ -255,62 +350,31 @@ impl<Q: EventQueue> Engine<Q> {
                 };
             }
         }
-        let now = self.now;
-        let mut best_entry = None;
-        // A pair that collided at this very instant may still touch and,
-        // by round-off, still look approaching; colliding it again at delay
-        // 0 would repeat for ever without moving the clock.
-        let just_hit = if self.last_collision[i] == now {
-            self.last_partner[i]
-        } else {
-            NO_PARTNER
-        };
-        let is_soft = &self.is_soft;
-        let mut consider = |entry: u32, kin: &[Kinematics]| {
-            let (j, code) = neighbours::unpack(entry);
-            if soft_i && is_soft[j as usize] {
-                return;
-            }
-            let kj = &kin[j as usize];
-            let pj = kj.position_at(now) + self.image_shift[code as usize];
-            let t = geometry::pair_contact_time_eager(
-                ki.pos - pj,
-                ki.vel - kj.vel,
-                ki.radius + kj.radius,
-            );
-            if t < best && !(t == 0.0 && j == just_hit) {
-                best = t;
-                best_entry = Some(entry);
-            }
-        };
-        match self.config.neighbours {
-            NeighbourSearch::Lists => {
-                for &entry in self.lists.list(i) {
-                    consider(entry, &self.kin);
-                }
-            }
-            NeighbourSearch::Cells => {
-                // At least 3 cells per periodic axis: images are exact.
-                self.cells.for_each_near_cell(self.cell_of[i], |e, image| {
-                    if e.index as usize != i {
-                        consider(
-                            neighbours::pack(e.index, image.unwrap_or(IDENTITY_IMAGE)),
-                            &self.kin,
-                        );
-                    }
-                });
-            }
+        (best, event)
+    }
+
+    /// The earlier of the pair `search` found and the boundary `event` at
+    /// delay `best` (s).
+    #[inline]
+    fn choose(&self, best: f64, event: Scheduled, search: &PairSearch) -> Prediction {
+        let candidate = search.candidate(self.now, &self.counter);
+        match search.best_entry {
+            Some(entry) if search.best < best => Prediction {
+                delay: search.best,
+                event: Scheduled {
+                    kind: EventKind::Pair,
+                    face: 0,
+                    partner: entry,
+                    partner_count: candidate.partner_count,
+                },
+                candidate,
+            },
+            _ => Prediction {
+                delay: best,
+                event,
+                candidate,
+            },
         }
-        if let Some(entry) = best_entry {
-            event = Scheduled {
-                kind: EventKind::Pair,
-                face: 0,
-                partner: entry,
-                partner_count: self.counter[neighbours::unpack(entry).0 as usize],
-            };
-        }
-        self.scheduled[i] = event;
-        self.queue.set(i as u32, now + best);
     }
 
     #[inline]
@@ -335,6 +399,88 @@ impl<Q: EventQueue> Engine<Q> {
                 self.rebuild_list(i);
                 self.predict(i);
             }
+        }
+    }
+}
+
+/// Particles per rayon task in [`Engine::predict_all`].
+const PREDICTIONS_PER_TASK: usize = 512;
+
+/// A particle's next event: its delay (s), the event, and (cells mode) the
+/// best pair to keep for a partial prediction.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Prediction {
+    delay: f64,
+    event: Scheduled,
+    candidate: PairCandidate,
+}
+
+/// The search for a particle's earliest pair collision over candidate
+/// partners (list entries or cell entries, packed with their image code).
+struct PairSearch {
+    i: Kinematics,
+    now: f64,
+    /// Earliest contact delay found so far (s), and its entry.
+    best: f64,
+    best_entry: Option<u32>,
+    /// The partner not to collide again at delay 0 (see `predict`).
+    just_hit: u32,
+    soft_i: bool,
+}
+
+impl PairSearch {
+    #[inline]
+    fn new<Q: EventQueue>(engine: &Engine<Q>, i: usize, ki: Kinematics) -> Self {
+        let now = engine.now;
+        // A pair that collided at this very instant may still touch and,
+        // by round-off, still look approaching; colliding it again at delay
+        // 0 would repeat for ever without moving the clock.
+        let just_hit = if engine.last_collision[i] == now {
+            engine.last_partner[i]
+        } else {
+            NO_PARTNER
+        };
+        PairSearch {
+            i: ki,
+            now,
+            best: f64::INFINITY,
+            best_entry: None,
+            just_hit,
+            soft_i: engine.is_soft[i],
+        }
+    }
+
+    /// Takes the partner `entry` into account (Eq. 45).
+    #[inline(always)]
+    fn consider(&mut self, entry: u32, kin: &[Kinematics], is_soft: &[bool], shifts: &[DVec3; 27]) {
+        let (j, code) = neighbours::unpack(entry);
+        // Hybrid: soft pairs meet through contact forces.
+        if self.soft_i && is_soft[j as usize] {
+            return;
+        }
+        let kj = &kin[j as usize];
+        let pj = kj.position_at(self.now) + shifts[code as usize];
+        let t = geometry::pair_contact_time_eager(
+            self.i.pos - pj,
+            self.i.vel - kj.vel,
+            self.i.radius + kj.radius,
+        );
+        if t < self.best && !(t == 0.0 && j == self.just_hit) {
+            self.best = t;
+            self.best_entry = Some(entry);
+        }
+    }
+
+    /// The best pair found, to keep for a later partial prediction.
+    #[inline]
+    fn candidate(&self, now: f64, counter: &[u32]) -> PairCandidate {
+        match self.best_entry {
+            Some(entry) => PairCandidate {
+                time: now + self.best,
+                entry,
+                partner_count: counter[neighbours::unpack(entry).0 as usize],
+            },
+            None => PairCandidate::NONE,
         }
     }
 }

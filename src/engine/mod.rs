@@ -35,7 +35,7 @@ pub use state::{EngineState, SlotState};
 pub use store::ParticleView;
 
 use soft_stepper::{SOFT_START_OVERLAP, SoftStepper};
-use store::{Kinematics, SHELL_EXIT, Scheduled, Shell};
+use store::{Kinematics, PairCandidate, SHELL_EXIT, Scheduled, Shell};
 
 use glam::DVec3;
 use rand::SeedableRng;
@@ -223,6 +223,10 @@ pub struct Engine<Q: EventQueue> {
     face_mask: Vec<u8>,
     /// Cells mode: the cell each particle is in.
     cell_of: Vec<[usize; 3]>,
+    /// Cells mode: each particle's best pair at its last prediction.
+    pair_candidate: Vec<PairCandidate>,
+    /// Reused by [`Engine::predict_all`].
+    prediction_buffer: Vec<Option<event_loop::Prediction>>,
     last_collision: Vec<f64>,
     /// Slot of the last collision partner (`NO_PARTNER` after a wall).
     last_partner: Vec<u32>,
@@ -377,6 +381,8 @@ impl<Q: EventQueue> Engine<Q> {
             shells: Vec::with_capacity(n),
             face_mask: Vec::with_capacity(n),
             cell_of: Vec::with_capacity(n),
+            pair_candidate: Vec::with_capacity(n),
+            prediction_buffer: Vec::new(),
             last_collision: Vec::with_capacity(n),
             last_partner: Vec::with_capacity(n),
             step_collisions: Vec::with_capacity(n),
@@ -505,6 +511,7 @@ impl<Q: EventQueue> Engine<Q> {
             };
             self.face_mask[s] = 0;
             self.cell_of[s] = [0; 3];
+            self.pair_candidate[s] = PairCandidate::NONE;
             self.last_collision[s] = f64::NEG_INFINITY;
             self.last_partner[s] = NO_PARTNER;
             self.step_collisions[s] = 0;
@@ -525,6 +532,7 @@ impl<Q: EventQueue> Engine<Q> {
         });
         self.face_mask.push(0);
         self.cell_of.push([0; 3]);
+        self.pair_candidate.push(PairCandidate::NONE);
         self.last_collision.push(f64::NEG_INFINITY);
         self.last_partner.push(NO_PARTNER);
         self.step_collisions.push(0);
@@ -653,6 +661,7 @@ impl<Q: EventQueue> Engine<Q> {
             + size_of::<Shell>()
             + size_of::<u8>()
             + size_of::<[usize; 3]>()
+            + size_of::<PairCandidate>()
             + size_of::<u32>() * (self.lists.stride() + 1);
         let queue = 16; // one (time, index) entry and a position per particle
         let slots = self.kin.len().max(1);

@@ -102,15 +102,19 @@ impl<Q: EventQueue> Engine<Q> {
         } else {
             c[axis] -= 1;
         }
+        self.counters.neighbour_updates += 1;
         if shift != 0.0 {
+            // New coordinates: the kept pair's image code no longer holds.
             self.sync(i);
             let mut pos = self.kin[i].pos;
             pos[axis] += shift;
             self.set_wrapped_position(i, pos);
+            self.move_to_cell(i, c);
+            self.predict(i);
+        } else {
+            self.move_to_cell(i, c);
+            self.predict_after_crossing(i, axis, face % 2 == 1);
         }
-        self.counters.neighbour_updates += 1;
-        self.move_to_cell(i, c);
-        self.predict(i);
     }
 
     /// Moves a synchronised particle to its periodic image `pos`.

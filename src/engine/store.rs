@@ -120,6 +120,7 @@ impl<Q: EventQueue> Engine<Q> {
         self.scheduled = vec![SHELL_EXIT; n];
         self.face_mask = vec![0; n];
         self.cell_of = vec![[0; 3]; n];
+        self.pair_candidate = vec![PairCandidate::NONE; n];
         self.free_slots.clear();
         self.queue.clear();
         self.lists = NeighbourLists::new(n, self.lists.stride());
@@ -235,3 +236,23 @@ pub(super) const SHELL_EXIT: Scheduled = Scheduled {
     partner: 0,
     partner_count: 0,
 };
+
+/// Cells mode: a particle's earliest pair collision found at its last
+/// prediction, kept so that a cell crossing need scan only the newly
+/// adjacent cells (`Engine::predict_after_crossing`). `time` is on the
+/// engine clock (s), `INFINITY` for none; `entry` is packed as in
+/// [`Scheduled`], with the partner's event counter at prediction.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct PairCandidate {
+    pub(super) time: f64,
+    pub(super) entry: u32,
+    pub(super) partner_count: u32,
+}
+
+impl PairCandidate {
+    pub(super) const NONE: PairCandidate = PairCandidate {
+        time: f64::INFINITY,
+        entry: 0,
+        partner_count: 0,
+    };
+}

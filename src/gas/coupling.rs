@@ -37,6 +37,7 @@
 //! faces: exact for a uniform gradient at any position in a cell.
 
 use glam::DVec3;
+use rayon::prelude::*;
 
 use super::config::PlanarPorosity;
 use super::drag::particle_drag_coefficient;
@@ -49,6 +50,13 @@ use crate::engine::ParticleView;
 /// packings stay above 0.36; lower values only come from mapping round-off
 /// in cells much smaller than particles.
 pub const MIN_GAS_FRACTION: f64 = 0.3;
+
+/// Particles per rayon task in the per-particle loops: enough work to
+/// outweigh a task's overhead. The loops are maps (each particle's result
+/// depends on that particle only) and every sum over particles runs
+/// serially in slot order afterwards, so results are bit-identical
+/// whatever the thread count.
+const PARTICLES_PER_TASK: usize = 256;
 
 /// The 1D weights of one particle: per axis over the cells and over the
 /// face control volumes. Products give the cell weights and, per velocity
@@ -165,17 +173,6 @@ pub struct Coupling {
 }
 
 impl Coupling {
-    /// Side of the cube (or, for planar beds with Hoomans' conversion, the
-    /// square) that represents a particle of radius `r` (Eq. 33–34).
-    fn side(gas: &GasPhase, r: f64) -> f64 {
-        mapping_side(
-            &gas.grid,
-            gas.config.porosity,
-            gas.config.planar_porosity,
-            2.0 * r,
-        )
-    }
-
     /// Maps the particles in `slots` (`None`: free slot) and caches their
     /// stencils; returns the gas fraction per cell (Eq. 33 or 37; planar
     /// beds with Hoomans' 2D-to-3D conversion), clamped at
@@ -195,14 +192,26 @@ impl Coupling {
         };
         self.solids.clear();
         self.solids.resize(grid.cells(), 0.0);
+        let views: Vec<Option<ParticleView>> = slots.collect();
+        let (porosity, planar) = (gas.config.porosity, gas.config.planar_porosity);
         self.stencils.clear();
-        for slot in slots {
-            let Some(p) = slot else {
-                self.stencils.push(None);
+        self.stencils.resize(views.len(), None);
+        self.stencils
+            .par_iter_mut()
+            .zip(views.par_iter())
+            .with_min_len(PARTICLES_PER_TASK)
+            .for_each(|(stencil, slot)| {
+                if let Some(p) = slot {
+                    let side = mapping_side(grid, porosity, planar, 2.0 * p.radius);
+                    stencil
+                        .insert(ParticleStencil::EMPTY)
+                        .fill(grid, p.pos, side);
+                }
+            });
+        for (slot, stencil) in views.iter().zip(&self.stencils) {
+            let (Some(p), Some(stencil)) = (slot, stencil) else {
                 continue;
             };
-            let mut stencil = ParticleStencil::EMPTY;
-            stencil.fill(grid, p.pos, Self::side(gas, p.radius));
             let amount = if hoomans {
                 std::f64::consts::PI * p.radius * p.radius
             } else {
@@ -210,7 +219,6 @@ impl Coupling {
             };
             let solids = &mut self.solids;
             stencil.for_each(None, cell_strides, |c, w| solids[c] += amount * w);
-            self.stencils.push(Some(stencil));
         }
         self.gas_fraction.clear();
         for &s in &self.solids {
@@ -238,7 +246,8 @@ impl Coupling {
         slots: impl Iterator<Item = Option<ParticleView>> + Clone,
         dt: f64,
     ) {
-        self.gas_fraction(gas, slots.clone());
+        let views: Vec<Option<ParticleView>> = slots.collect();
+        self.gas_fraction(gas, views.iter().copied());
         let two_way = gas.config.two_way;
         if two_way {
             gas.set_gas_fraction(&self.gas_fraction);
@@ -257,25 +266,32 @@ impl Coupling {
         let mu = gas.config.viscosity;
         let gravity = gas.gravity();
         let axes = gas.grid.velocity_axes();
-        self.drag_coefficient.clear();
-        self.relaxation.clear();
-        for (slot, stencil) in slots.zip(&self.stencils) {
+        let (fraction, density, velocity) = (&gas.gas_fraction, &gas.density, &gas.velocity);
+        let (drag, relaxation): (Vec<f64>, Vec<f64>) = views
+            .par_iter()
+            .zip(self.stencils.par_iter())
+            .with_min_len(PARTICLES_PER_TASK)
+            .map(|(slot, stencil)| {
+                let (Some(p), Some(st)) = (slot, stencil) else {
+                    return (0.0, 1.0);
+                };
+                let eps = st.interpolate(None, cell_strides, fraction);
+                let rho = st.interpolate(None, cell_strides, density);
+                let mut u = DVec3::ZERO;
+                for &a in axes {
+                    u[a] = st.interpolate(Some(a), face_strides[a], &velocity[a]);
+                }
+                let slip = (u - p.vel).length();
+                let k = particle_drag_coefficient(law, eps, rho, mu, 2.0 * p.radius, slip);
+                (k, relaxation_factor(k * dt / p.mass))
+            })
+            .unzip();
+        (self.drag_coefficient, self.relaxation) = (drag, relaxation);
+        let per_slot = self.stencils.iter().zip(&self.drag_coefficient);
+        for ((slot, (stencil, &k)), &phi) in views.iter().zip(per_slot).zip(&self.relaxation) {
             let (Some(p), Some(st)) = (slot, stencil) else {
-                self.drag_coefficient.push(0.0);
-                self.relaxation.push(1.0);
                 continue;
             };
-            let eps = st.interpolate(None, cell_strides, &gas.gas_fraction);
-            let rho = st.interpolate(None, cell_strides, &gas.density);
-            let mut u = DVec3::ZERO;
-            for &a in axes {
-                u[a] = st.interpolate(Some(a), face_strides[a], &gas.velocity[a]);
-            }
-            let slip = (u - p.vel).length();
-            let k = particle_drag_coefficient(law, eps, rho, mu, 2.0 * p.radius, slip);
-            let phi = relaxation_factor(k * dt / p.mass);
-            self.drag_coefficient.push(k);
-            self.relaxation.push(phi);
             if two_way {
                 let beta = phi * k / volume;
                 let share = phi * sphere_volume(p.radius) / volume;
@@ -336,23 +352,37 @@ impl Coupling {
         }
         let gravity = gas.gravity();
         let (_, face_strides) = strides(&gas.grid);
+        let views: Vec<Option<ParticleView>> = slots.collect();
+        let (axes, velocity, gradient) = (gas.grid.velocity_axes(), &gas.velocity, &self.gradient);
+        let per_slot = self
+            .stencils
+            .par_iter()
+            .zip(self.drag_coefficient.par_iter());
+        views
+            .par_iter()
+            .zip(per_slot)
+            .zip(self.relaxation.par_iter())
+            .with_min_len(PARTICLES_PER_TASK)
+            .map(|((slot, (stencil, &k)), &phi)| {
+                let (Some(p), Some(st)) = (slot, stencil) else {
+                    return DVec3::ZERO;
+                };
+                let mut u = DVec3::ZERO;
+                let mut grad_p = DVec3::ZERO;
+                for &a in axes {
+                    u[a] = st.interpolate(Some(a), face_strides[a], &velocity[a]);
+                    grad_p[a] = st.interpolate(Some(a), face_strides[a], &gradient[a]);
+                }
+                let force = k * (u - p.vel) - sphere_volume(p.radius) * grad_p + p.mass * gravity;
+                force * (phi * dt / p.mass)
+            })
+            .collect_into_vec(&mut self.kicks);
+        // Summed in slot order, as the kicks themselves are thread-independent.
         let mut to_particles = DVec3::ZERO;
-        let per_slot = self.stencils.iter().zip(&self.drag_coefficient);
-        for ((slot, (stencil, &k)), &phi) in slots.zip(per_slot).zip(&self.relaxation) {
-            let (Some(p), Some(st)) = (slot, stencil) else {
-                self.kicks.push(DVec3::ZERO);
-                continue;
-            };
-            let mut u = DVec3::ZERO;
-            let mut grad_p = DVec3::ZERO;
-            for &a in gas.grid.velocity_axes() {
-                u[a] = st.interpolate(Some(a), face_strides[a], &gas.velocity[a]);
-                grad_p[a] = st.interpolate(Some(a), face_strides[a], &self.gradient[a]);
+        for (slot, kick) in views.iter().zip(&self.kicks) {
+            if let Some(p) = slot {
+                to_particles += p.mass * *kick - p.mass * gravity * dt;
             }
-            let force = k * (u - p.vel) - sphere_volume(p.radius) * grad_p + p.mass * gravity;
-            let kick = force * (phi * dt / p.mass);
-            to_particles += p.mass * kick - p.mass * gravity * dt;
-            self.kicks.push(kick);
         }
         self.exchange_impulse_particles += to_particles;
         &self.kicks
@@ -470,7 +500,12 @@ mod tests {
                 })
                 .collect();
             for p in &particles {
-                let side = Coupling::side(&g, p.radius);
+                let side = mapping_side(
+                    &grid,
+                    g.config.porosity,
+                    g.config.planar_porosity,
+                    2.0 * p.radius,
+                );
                 let mut st = ParticleStencil::EMPTY;
                 st.fill(&grid, p.pos, side);
                 let mut ours = Vec::new();

@@ -4,7 +4,8 @@
 //! ties broken by the smaller particle index.
 
 /// A priority queue holding at most one event time per particle index.
-pub trait EventQueue {
+/// `Sync`, so that the engine's read-only passes may run in parallel.
+pub trait EventQueue: Sync {
     /// Empty queue able to hold indices `0..n` without reallocating.
     fn with_capacity(n: usize) -> Self
     where
