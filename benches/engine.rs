@@ -1,0 +1,104 @@
+//! Benchmarks of the engine kernels changed for speed (issue 13):
+//!
+//! - `cell_scan`: the partners a cells-mode prediction visits, all 27
+//!   cells around a particle against the 9 newly adjacent ones a cell
+//!   crossing scans (`CellGrid::for_each_in_new_layer`);
+//! - `collisions`: the event loop of `edpm bench` (elastic spheres,
+//!   periodic cube, N = 4000), time per 1000 pair collisions, with cells
+//!   at φ = 0.1 and lists at φ = 0.3 and 0.45 (the `auto` choices).
+
+use std::hint::black_box;
+use std::time::{Duration, Instant};
+
+use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
+use edpm::bench::fcc_system;
+use edpm::collision::ContactParams;
+use edpm::engine::{Engine, EngineConfig, NeighbourSearch, auto_neighbour_search};
+use edpm::materials::MaterialTable;
+use edpm::neighbours::CellGrid;
+use edpm::queue::CalendarQueue;
+
+fn cell_scan(c: &mut Criterion) {
+    // Unit spheres at φ = 0.1 in cells one diameter wide, as cells mode has.
+    let (domain, particles) = fcc_system(4000, 0.1, 1);
+    let mut grid = CellGrid::new(domain.lo, domain.hi, 1.0, [true; 3], particles.len());
+    for (i, p) in particles.iter().enumerate() {
+        grid.place(i, p.pos, 0.5);
+    }
+    let cells: Vec<[usize; 3]> = particles.iter().map(|p| grid.coords(p.pos)).collect();
+    let mut group = c.benchmark_group("cell_scan");
+    group.throughput(Throughput::Elements(cells.len() as u64));
+    group.bench_function("27 cells", |b| {
+        b.iter(|| {
+            let mut sum = 0u32;
+            for &cell in &cells {
+                grid.for_each_near_cell(cell, |e, _| sum = sum.wrapping_add(e.index));
+            }
+            black_box(sum)
+        })
+    });
+    group.bench_function("9 new cells", |b| {
+        b.iter(|| {
+            let mut sum = 0u32;
+            for (k, &cell) in cells.iter().enumerate() {
+                grid.for_each_in_new_layer(cell, k % 3, k % 2 == 0, |e, _| {
+                    sum = sum.wrapping_add(e.index)
+                });
+            }
+            black_box(sum)
+        })
+    });
+    group.finish();
+}
+
+/// Collisions processed per benchmark element.
+const COLLISIONS: u64 = 1000;
+
+fn collisions(c: &mut Criterion) {
+    let mut group = c.benchmark_group("collisions");
+    group.throughput(Throughput::Elements(COLLISIONS));
+    group.measurement_time(Duration::from_secs(5));
+    for phi in [0.1, 0.3, 0.45] {
+        let (domain, particles) = fcc_system(4000, phi, 1);
+        let side = domain.size().x;
+        let neighbours = auto_neighbour_search(phi, false, side >= 3.0);
+        let config = EngineConfig {
+            skin: 0.3,
+            seed: 1,
+            neighbours,
+            ..Default::default()
+        };
+        let materials =
+            MaterialTable::single(6.0 / std::f64::consts::PI, ContactParams::ELASTIC_SMOOTH);
+        let mut engine: Engine<CalendarQueue> =
+            Engine::new(domain, materials, config, &particles).expect("FCC start");
+        // Melt the lattice first: 5 collisions per particle.
+        while engine.counters.pair_collisions < 5 * particles.len() as u64 {
+            engine.advance(0.1);
+        }
+        let label = match neighbours {
+            NeighbourSearch::Lists => "lists",
+            NeighbourSearch::Cells => "cells",
+        };
+        group.bench_function(BenchmarkId::new(label, phi), |b| {
+            b.iter_custom(|iters| {
+                let target = engine.counters.pair_collisions + iters * COLLISIONS;
+                let start = Instant::now();
+                while engine.counters.pair_collisions < target {
+                    engine.advance(1e-3);
+                }
+                start.elapsed()
+            })
+        });
+        black_box(engine.kinetic_energy());
+    }
+    group.finish();
+}
+
+criterion_group! {
+    name = benches;
+    // Criterion's plotting backend panics here (no fonts): numbers only.
+    config = Criterion::default().without_plots();
+    targets = cell_scan, collisions
+}
+criterion_main!(benches);
