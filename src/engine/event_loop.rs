@@ -289,7 +289,7 @@ impl<Q: EventQueue> Engine<Q> {
                 }
             });
         let now = self.now;
-        if kept.time.is_finite() && !(now + search.best < kept.time) {
+        if kept.time.is_finite() && now + search.best >= kept.time {
             search.best = kept.time - now;
             search.best_entry = Some(kept.entry);
         }
