@@ -16,7 +16,7 @@ use glam::DVec3;
 use rand_xoshiro::Xoshiro256PlusPlus;
 use serde::{Deserialize, Serialize};
 
-use super::store::{Kinematics, SHELL_EXIT, Shell};
+use super::store::{Kinematics, PairCandidate, SHELL_EXIT, Shell};
 use super::{CollapseReport, ContactModel, Counters, Engine, SoftStats};
 use crate::neighbours::{CellEntry, NeighbourLists};
 use crate::particles::NewParticle;
@@ -207,6 +207,9 @@ impl<Q: EventQueue> Engine<Q> {
             .iter()
             .map(|s| s.cell.map(|c| c as usize))
             .collect();
+        // Restored at a flow-step end: every particle is re-predicted in
+        // full, which refills the kept pairs of cells mode.
+        self.pair_candidate = vec![PairCandidate::NONE; n];
         self.last_collision = state.slots.iter().map(|s| s.last_collision).collect();
         self.last_partner = state.slots.iter().map(|s| s.last_partner).collect();
         self.step_collisions = vec![0; n];
