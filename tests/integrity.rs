@@ -6,58 +6,16 @@
 //! logs with a missing block are refused by every reader; a killed run
 //! keeps its streamed time series.
 
+mod common;
+
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
+
+use common::{EDPM, ROOT, edpm, error_line, fresh_dir, run_ok, s};
 
 use edpm::io::container;
 use edpm::io::output::{CHECKPOINT_KIND, Checkpoint};
 use edpm::io::snapshot::Snapshot;
-
-const EDPM: &str = env!("CARGO_BIN_EXE_edpm");
-const ROOT: &str = env!("CARGO_MANIFEST_DIR");
-
-fn fresh_dir(name: &str) -> PathBuf {
-    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("integrity-{name}"));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
-
-fn edpm(args: &[&str]) -> Output {
-    Command::new(EDPM)
-        .current_dir(ROOT)
-        .args(args)
-        .output()
-        .expect("edpm runs")
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
-}
-
-/// `edpm run SCENARIO --quiet --out DIR ARGS`, which must succeed.
-fn run_ok(scenario: &str, dir: &Path, args: &[&str]) {
-    let mut all = vec!["run", scenario, "--quiet", "--out", s(dir)];
-    all.extend_from_slice(args);
-    let o = edpm(&all);
-    assert!(
-        o.status.success(),
-        "edpm {all:?} failed: {}",
-        String::from_utf8_lossy(&o.stderr)
-    );
-}
-
-/// The single `edpm: error:` line of a clean failure (exit code 1).
-fn error_line(o: &Output) -> String {
-    let err = String::from_utf8_lossy(&o.stderr).into_owned();
-    assert_eq!(o.status.code(), Some(1), "expected a clean error: {err}");
-    let lines: Vec<&str> = err
-        .lines()
-        .filter(|l| l.starts_with("edpm: error: "))
-        .collect();
-    assert_eq!(lines.len(), 1, "one error line expected: {err}");
-    lines[0].trim_start_matches("edpm: error: ").to_string()
-}
 
 fn u32_at(b: &[u8], at: usize) -> u32 {
     u32::from_le_bytes(b[at..at + 4].try_into().unwrap())

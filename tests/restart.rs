@@ -5,59 +5,18 @@
 //! file; damaged or mismatched restart files are refused in plain words;
 //! `tools/edpm_data.py` reads them as edpm does.
 
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+mod common;
+
+use std::path::Path;
+use std::process::Command;
+
+use common::{EDPM, ROOT, edpm, error_line, fresh_dir, run_ok, s};
 
 use edpm::io::container;
 use edpm::run::restart::{RESTART_KIND, RestartFile};
 
-const EDPM: &str = env!("CARGO_BIN_EXE_edpm");
-const ROOT: &str = env!("CARGO_MANIFEST_DIR");
 const RISER: &str = "scenarios/riser-nonideal.toml";
 const JET: &str = "scenarios/bubbling-bed-jet.toml";
-
-fn fresh_dir(name: &str) -> PathBuf {
-    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("restart-{name}"));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
-}
-
-fn edpm(args: &[&str]) -> Output {
-    Command::new(EDPM)
-        .current_dir(ROOT)
-        .args(args)
-        .output()
-        .expect("edpm runs")
-}
-
-/// `edpm run SCENARIO --quiet --out DIR ARGS`, which must succeed.
-fn run_ok(scenario: &str, dir: &Path, args: &[&str]) {
-    let mut all = vec!["run", scenario, "--quiet", "--out", s(dir)];
-    all.extend_from_slice(args);
-    let o = edpm(&all);
-    assert!(
-        o.status.success(),
-        "edpm {all:?} failed: {}",
-        String::from_utf8_lossy(&o.stderr)
-    );
-}
-
-/// The single `edpm: error:` line of a clean failure (exit code 1).
-fn error_line(o: &Output) -> String {
-    let err = String::from_utf8_lossy(&o.stderr).into_owned();
-    assert_eq!(o.status.code(), Some(1), "expected a clean error: {err}");
-    let lines: Vec<&str> = err
-        .lines()
-        .filter(|l| l.starts_with("edpm: error: "))
-        .collect();
-    assert_eq!(lines.len(), 1, "one error line expected: {err}");
-    lines[0].trim_start_matches("edpm: error: ").to_string()
-}
 
 fn read_restart(path: &Path) -> RestartFile {
     container::read::<RestartFile>(&RESTART_KIND, path)
