@@ -1258,7 +1258,7 @@ fn second_pass(
         particle_volume_sum += snap
             .particles
             .iter()
-            .map(|q| 4.0 / 3.0 * std::f64::consts::PI * q.radius.powi(3))
+            .map(|q| sphere_volume(q.radius))
             .sum::<f64>();
         let (sums, cells) = cell_sums(&snap.particles, grid);
         let eps = solids_fraction(&sums, grid);

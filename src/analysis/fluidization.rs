@@ -13,6 +13,7 @@ use std::path::Path;
 use anyhow::Context;
 use glam::DVec3;
 
+use super::grid::sphere_volume;
 use crate::gas::GridGeometry;
 use crate::gas::drag::{umf_ergun, umf_wen_yu};
 use crate::gas::mapping::solids_fraction;
@@ -31,7 +32,7 @@ pub fn column(csv: &CsvColumns, name: &str) -> anyhow::Result<Vec<f64>> {
 pub fn solids_volume(particles: &CsvColumns) -> anyhow::Result<f64> {
     Ok(column(particles, "radius_m")?
         .iter()
-        .map(|r| 4.0 / 3.0 * std::f64::consts::PI * r.powi(3))
+        .map(|&r| sphere_volume(r))
         .sum())
 }
 
