@@ -632,3 +632,96 @@ fn pressure_solve_near_round_off_does_not_stop_a_run() {
     );
     assert!(((v - vt) / vt).abs() < 0.02, "{v} vs {vt}");
 }
+
+#[test]
+fn jet_momentum_and_pressure_drop_together_carry_the_column() {
+    // A steady laminar planar jet (5 m/s through the middle quarter of the
+    // bottom, 1.2 kg/m³, μ = 2e-3 Pa s) into a column with free-slip sides
+    // and an outlet on top, no particles. The column's gas momentum balance
+    // says static pressure drop + net momentum inflow = gas weight per area
+    // ρ g (H − h/2) (from the bottom cell centres to the outlet face): the
+    // jet decelerates, so the static pressure rises upward (Δp < 0,
+    // Borda–Carnot's sudden expansion). This is what `gas_support_mean_Pa`
+    // adds to the pressure drop for a jet bed (docs/gas.md).
+    let dir = std::env::temp_dir().join(format!("edpm-jet-column-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let text = r#"
+seed = 1
+[domain]
+lo = [0.0, 0.0, 0.0]
+hi = [0.08, 0.32, 0.01]
+planar = true
+gravity = [0.0, -9.81, 0.0]
+[boundaries]
+wall_material = "glass"
+[[materials]]
+name = "glass"
+density = 2500.0
+[collisions]
+default = { e_n = 0.9, beta_0 = -1.0, mu = 0.0 }
+[[particles]]
+name = "none"
+material = "glass"
+count = 0
+diameter = 0.001
+placement = "random"
+[gas]
+model = "incompressible"
+density = 1.2
+viscosity = 2e-3
+cells = [8, 32, 1]
+[gas.faces]
+x_lo = "free-slip"
+x_hi = "free-slip"
+y_hi = "outlet"
+[[gas.jets]]
+face = "y_lo"
+centre = [0.04, 0.0, 0.0]
+size = [0.02, 0.0, 0.0]
+velocity = 5.0
+[time]
+t_end = 2.0
+dt_flow = 1e-3
+[output]
+sample_interval = 0.1
+"#;
+    let s = Scenario::from_str_named(text, "jet-column.toml", &[]).expect("scenario");
+    edpm::run::run_scenario(&s, &dir, false).expect("run");
+    let csv = edpm::io::output::CsvColumns::read(&dir.join("gas_timeseries.csv")).expect("csv");
+    let _ = std::fs::remove_dir_all(&dir);
+    let col = |name: &str| csv.column(name).expect(name);
+    let (dp, inflow, support) = (
+        col("pressure_drop_Pa"),
+        col("momentum_inflow_Pa"),
+        col("gas_support_mean_Pa"),
+    );
+    let [before, last] = [&csv.rows[csv.rows.len() - 2], &csv.rows[csv.rows.len() - 1]];
+    // Steady: the last two samples agree far below the tolerances below.
+    assert!(
+        (last[dp] - before[dp]).abs() < 1e-6,
+        "not steady: {before:?} {last:?}"
+    );
+    let weight = 1.2 * 9.81 * (0.32 - 0.005);
+    let m = last[inflow];
+    eprintln!(
+        "jet column: dp {:.4} Pa, momentum inflow {m:.4} Pa, sum {:.4} Pa, gas weight {weight:.4} Pa",
+        last[dp], last[support]
+    );
+    // Borda–Carnot with a uniform outflow: ρ u_j² A_j/A − ρ U² = 5.625 Pa.
+    // The outflow is not quite uniform at 0.3 m (its profile adds
+    // ∫ρ(u² − U²) > 0 to the outflux, about 2 % here): 4 %.
+    let borda = 1.2 * 25.0 * 0.25 - 1.2 * 1.25 * 1.25;
+    assert!(
+        ((m - borda) / borda).abs() < 0.04,
+        "inflow {m} against {borda}"
+    );
+    assert!(last[dp] < 0.0, "the static pressure must rise upward");
+    // The balance closes but for the viscous normal stress and the
+    // limiter's face value at the inlet plane (both outside the
+    // measure): 0.9 % of the momentum inflow measured; tolerance 2 %.
+    assert!(
+        (last[support] - weight).abs() < 0.02 * m,
+        "support {} against gas weight {weight}",
+        last[support]
+    );
+}

@@ -75,9 +75,10 @@ struct IntervalStats {
     linear: u64,
     courant: f64,
     pressure_drop_sum: f64,
+    gas_support_sum: f64,
 }
 
-pub const GAS_SERIES_HEADER: [&str; 8] = [
+pub const GAS_SERIES_HEADER: [&str; 10] = [
     "time_s",
     "pressure_drop_Pa",
     "pressure_drop_mean_Pa",
@@ -86,6 +87,8 @@ pub const GAS_SERIES_HEADER: [&str; 8] = [
     "mean_linear_iterations",
     "max_courant",
     "min_gas_fraction",
+    "momentum_inflow_Pa",
+    "gas_support_mean_Pa",
 ];
 
 impl GasRun {
@@ -184,6 +187,7 @@ impl GasRun {
         }
         let courant = self.gas.courant(dt);
         let pressure_drop = self.pressure_drop();
+        let gas_support = pressure_drop + self.momentum_inflow();
         let t = &mut self.totals;
         t.steps += 1;
         t.outer_iterations += stats.outer_iterations as u64;
@@ -200,6 +204,7 @@ impl GasRun {
         i.linear += stats.linear_iterations as u64;
         i.courant = i.courant.max(courant);
         i.pressure_drop_sum += pressure_drop;
+        i.gas_support_sum += gas_support;
         t.gas_cpu_seconds += crate::timing::cpu_time() - start;
         Ok(())
     }
@@ -257,6 +262,21 @@ impl GasRun {
         }
     }
 
+    /// Net gas momentum flux into the column along `−gravity` per area of
+    /// the cross-section (Pa, [`GasPhase::momentum_inflow`]): with a jet,
+    /// the part of the bed's weight its momentum carries. 0 without gravity.
+    pub fn momentum_inflow(&self) -> f64 {
+        let Some(axis) = self.pressure_axis else {
+            return 0.0;
+        };
+        let inflow = self.gas.momentum_inflow(axis);
+        if self.gas.gravity()[axis] > 0.0 {
+            -inflow
+        } else {
+            inflow
+        }
+    }
+
     /// One row of `gas_timeseries.csv` (columns [`GAS_SERIES_HEADER`]);
     /// resets the interval statistics.
     pub fn sample_row(&mut self) -> [f64; GAS_SERIES_HEADER.len()] {
@@ -281,6 +301,12 @@ impl GasRun {
             i.linear as f64 / steps,
             i.courant,
             min_eps,
+            self.momentum_inflow(),
+            if i.steps > 0 {
+                i.gas_support_sum / steps
+            } else {
+                self.pressure_drop() + self.momentum_inflow()
+            },
         ]
     }
 }

@@ -765,6 +765,35 @@ impl GasPhase {
         Ok(stats)
     }
 
+    /// Net gas momentum flux into the domain along `+axis` through its two
+    /// boundary planes normal to `axis`, per unit area of a plane (Pa): the
+    /// plane mean of `ε ρ u²` (the `aa` component of the momentum flux
+    /// `ε ρ u u`, interstitial `u`) on the low plane minus that on the high
+    /// plane. Walls carry none; a periodic axis has no boundary (0). With an
+    /// inflow jet this is the support the jet's momentum gives the column,
+    /// beside the static pressure drop (docs/gas.md, "Pressure drop").
+    pub fn momentum_inflow(&self, axis: usize) -> f64 {
+        if self.grid.periodic[axis] || !self.is_velocity_axis(axis) {
+            return 0.0;
+        }
+        let n = self.grid.n[axis];
+        let (mut net, mut faces) = (0.0, 0.0);
+        for (f, link) in self.cells_of_face[axis].iter().enumerate() {
+            let side = self.grid.face_coords(axis, f)[axis];
+            if side != 0 && side != n {
+                continue;
+            }
+            let (_, eps_rho, _) = face_values(link, &self.gas_fraction, &self.density);
+            let u = self.velocity[axis][f];
+            let flux = eps_rho * u * u;
+            net += if side == 0 { flux } else { -flux };
+            faces += 0.5;
+        }
+        // Every face of a uniform grid's plane has the same area, so the
+        // plane mean is the sum over the faces of one plane.
+        net / faces
+    }
+
     /// Largest convective Courant number `|u| Δt / h`.
     pub fn courant(&self, dt: f64) -> f64 {
         let mut worst: f64 = 0.0;
