@@ -769,58 +769,87 @@ fn geometry(spheres: &[SoftSphere], a: usize, partner: &Partner, back: f64) -> (
 /// overlaps is treated as if it had touched at the start of the step. At the start,
 /// `force`/`torque` must hold the contact forces of the current state (zero
 /// if nothing overlaps), as left by the previous call.
-pub fn step(spheres: &mut [SoftSphere], contacts: &mut [SoftContact], gravity: DVec3, dt: f64) {
-    open_step(spheres, gravity, dt);
+///
+/// Returns the work (J) the contact forces did on the spheres in the step:
+/// the kinetic energy (translational and rotational) that the contact parts
+/// of the kicks added, exactly as applied (a kick `Δv` from `v` to `v'`
+/// adds `m Δv · (v + v')/2`). Minus this, less the rise of the energy
+/// stored in the springs, is what the contacts dissipated.
+pub fn step(
+    spheres: &mut [SoftSphere],
+    contacts: &mut [SoftContact],
+    gravity: DVec3,
+    dt: f64,
+) -> f64 {
+    let opening = open_step(spheres, gravity, dt);
     for s in spheres.iter_mut() {
         s.pos += dt * s.vel;
     }
-    close_step(spheres, contacts, gravity, dt);
+    opening + close_step(spheres, contacts, gravity, dt)
 }
 
 /// The first part of [`step`] without the drift: the opening half kick
 /// `v ← v + ½dt a(t)` and the predictions for the end of the step; the
 /// forces are cleared. A caller that moves the spheres itself (the hybrid
-/// model's event loop) drifts them, then calls [`close_step`].
-pub fn open_step(spheres: &mut [SoftSphere], gravity: DVec3, dt: f64) {
+/// model's event loop) drifts them, then calls [`close_step`]. Returns the
+/// work of the contact forces in the half kick (J, see [`step`]).
+pub fn open_step(spheres: &mut [SoftSphere], gravity: DVec3, dt: f64) -> f64 {
     let half = 0.5 * dt;
+    let mut work = 0.0;
     for s in spheres.iter_mut() {
         let acc = s.force * s.inv_mass + gravity;
         let alpha = s.torque * s.inv_inertia();
+        let (vel, omega) = (s.vel, s.omega);
         s.vel += half * acc;
         s.omega += half * alpha;
+        work += kick_work(half, s, vel, omega);
         s.pred_vel = s.vel + half * acc;
         s.pred_omega = s.omega + half * alpha;
         s.force = DVec3::ZERO;
         s.torque = DVec3::ZERO;
     }
+    work
+}
+
+/// Work (J) of the contact force and torque of `s` in a kick of length
+/// `half` that took its velocity from `vel` to `s.vel` and its spin from
+/// `omega` to `s.omega`: the impulse `half F` times the mean velocity.
+#[inline]
+fn kick_work(half: f64, s: &SoftSphere, vel: DVec3, omega: DVec3) -> f64 {
+    half * (0.5 * s.force.dot(vel + s.vel) + 0.5 * s.torque.dot(omega + s.omega))
 }
 
 /// The last part of [`step`]: contact forces at the drifted positions and
 /// the closing half kick `v ← v + ½dt a(t+dt)` with the corrections of
-/// contacts that began or ended in the step.
+/// contacts that began or ended in the step. Returns the work of the
+/// contact forces in the half kick and the corrections (J, see [`step`]).
 pub fn close_step(
     spheres: &mut [SoftSphere],
     contacts: &mut [SoftContact],
     gravity: DVec3,
     dt: f64,
-) {
+) -> f64 {
     let half = 0.5 * dt;
     for c in contacts.iter_mut() {
         evaluate(spheres, c, dt);
     }
+    let mut work = 0.0;
     for s in spheres.iter_mut() {
         let acc = s.force * s.inv_mass + gravity;
+        let (vel, omega) = (s.vel, s.omega);
         s.vel += half * acc;
         s.omega += half * s.torque * s.inv_inertia();
+        work += kick_work(half, s, vel, omega);
     }
     for c in contacts.iter() {
         let st = &c.state;
         if st.kick_correction_n != 0.0 || st.kick_correction_t != DVec3::ZERO {
             let j_t = half * st.kick_correction_t;
             let j = half * st.kick_correction_n * st.normal + j_t;
-            apply(spheres, c, st.normal, j, j_t);
+            work += apply(spheres, c, st.normal, j, j_t);
         }
     }
+    work
 }
 
 /// Contact force at first touch (zero overlap and tangential displacement)
@@ -836,15 +865,22 @@ fn touch_force(v: DVec3, n: DVec3, c: &PairCoefficients) -> (f64, DVec3) {
 
 /// Adds impulse `j` (on a; b gets `−j`) and the angular impulses of its
 /// tangential part `j_t` (Eq. 23 with the signs of the module docs).
-fn apply(spheres: &mut [SoftSphere], c: &SoftContact, n: DVec3, j: DVec3, j_t: DVec3) {
-    let sa = &mut spheres[c.a];
-    sa.vel += j * sa.inv_mass;
-    sa.omega -= sa.radius * sa.inv_inertia() * n.cross(j_t);
+/// Returns their work (J): each impulse times the mean of the velocities
+/// before and after.
+fn apply(spheres: &mut [SoftSphere], c: &SoftContact, n: DVec3, j: DVec3, j_t: DVec3) -> f64 {
+    let mut work = 0.0;
+    let mut give = |s: &mut SoftSphere, j: DVec3| {
+        let (vel, omega) = (s.vel, s.omega);
+        s.vel += j * s.inv_mass;
+        s.omega -= s.radius * s.inv_inertia() * n.cross(j_t);
+        let angular = -s.radius * n.cross(j_t);
+        work += 0.5 * (j.dot(vel + s.vel) + angular.dot(omega + s.omega));
+    };
+    give(&mut spheres[c.a], j);
     if let Some((b, _)) = c.partner.sphere() {
-        let sb = &mut spheres[b];
-        sb.vel -= j * sb.inv_mass;
-        sb.omega -= sb.radius * sb.inv_inertia() * n.cross(j_t);
+        give(&mut spheres[b], -j);
     }
+    work
 }
 
 /// Step 2 of [`step`] for one contact: geometry, onset fraction, force, and

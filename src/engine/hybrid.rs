@@ -81,7 +81,7 @@ impl<Q: EventQueue> Engine<Q> {
             let steps = (remaining / st.config.dt_max).ceil().max(1.0);
             let h = remaining / steps;
             let target = if steps <= 1.0 { end } else { self.now + h };
-            soft::open_step(&mut st.spheres, DVec3::ZERO, h);
+            self.soft_stats.contact_work += soft::open_step(&mut st.spheres, DVec3::ZERO, h);
             self.write_members(&st);
             self.run_events(target, h, false);
             if self.stall.is_some() {
@@ -97,7 +97,8 @@ impl<Q: EventQueue> Engine<Q> {
             {
                 self.rebuild_contacts(&mut st);
             }
-            soft::close_step(&mut st.spheres, &mut st.contacts, DVec3::ZERO, h);
+            self.soft_stats.contact_work +=
+                soft::close_step(&mut st.spheres, &mut st.contacts, DVec3::ZERO, h);
             self.write_members(&st);
             let members = st.members.len();
             self.tally_contacts(&mut st, h, members as u64);

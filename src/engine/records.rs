@@ -136,6 +136,12 @@ pub struct Counters {
     pub dissipated_pair_tangential: f64,
     /// Kinetic energy dissipated in wall collisions (J).
     pub dissipated_wall: f64,
+    /// Energy dissipated by soft contacts (soft and hybrid models, J):
+    /// minus the work of their forces (`SoftStats::contact_work`) less the
+    /// elastic energy still stored in them, so it includes the energy of
+    /// the springs that the force clamp (module docs of
+    /// [`crate::contact::soft`]) left behind at separation.
+    pub dissipated_soft: f64,
     /// Collisions (pair and wall) made elastic by the TC model and by the
     /// collapse guard, and the energy they did not dissipate: nominal minus
     /// actual loss (J). Only collisions whose nominal `e_n` is below 1

@@ -57,6 +57,10 @@ pub struct SoftStats {
     /// Pair and wall contacts that began.
     pub pair_contacts: u64,
     pub wall_contacts: u64,
+    /// Work of the soft contact forces on the particles (J), summed over
+    /// the steps ([`soft::step`]); with the energy stored in the springs it
+    /// gives `Counters::dissipated_soft`.
+    pub contact_work: f64,
 }
 
 impl SoftStats {
@@ -168,7 +172,8 @@ impl<Q: EventQueue> Engine<Q> {
             if st.stale {
                 self.rebuild_contacts(&mut st);
             }
-            soft::step(&mut st.spheres, &mut st.contacts, st.config.gravity, h);
+            self.soft_stats.contact_work +=
+                soft::step(&mut st.spheres, &mut st.contacts, st.config.gravity, h);
             self.now = if k + 1 == steps { end } else { self.now + h };
             self.store_spheres(&st);
             self.tally_contacts(&mut st, h, self.len() as u64);
@@ -386,6 +391,7 @@ impl<Q: EventQueue> Engine<Q> {
                 self.counters.wall_impulse[face] -= h * force + (0.5 * h) * correction;
             }
         }
+        self.counters.dissipated_soft = -self.soft_stats.contact_work - stored_energy(&st.contacts);
     }
 
     /// Rebuilds the lists of particles that left their shells (wrapping
@@ -437,17 +443,9 @@ impl<Q: EventQueue> Engine<Q> {
     /// normal springs and `½ k_t |δ_t|²` of the tangential ones, at the end
     /// of the last soft step.
     pub fn soft_contact_energy(&self) -> f64 {
-        let Some(st) = &self.soft else {
-            return 0.0;
-        };
-        st.contacts
-            .iter()
-            .filter(|c| c.state.touching)
-            .map(|c| {
-                0.5 * c.coeffs.k_n * c.state.overlap * c.state.overlap
-                    + 0.5 * c.coeffs.k_t * c.state.displacement.length_squared()
-            })
-            .sum()
+        self.soft
+            .as_ref()
+            .map_or(0.0, |st| stored_energy(&st.contacts))
     }
 
     /// Whether the soft steps integrate gravity (then the run must not
@@ -457,4 +455,17 @@ impl<Q: EventQueue> Engine<Q> {
             .as_ref()
             .is_some_and(|s| s.config.gravity != DVec3::ZERO)
     }
+}
+
+/// Elastic energy stored in the springs of the touching `contacts` (J):
+/// `½ k_n δ² + ½ k_t |δ_t|²` each.
+fn stored_energy(contacts: &[SoftContact]) -> f64 {
+    contacts
+        .iter()
+        .filter(|c| c.state.touching)
+        .map(|c| {
+            0.5 * c.coeffs.k_n * c.state.overlap * c.state.overlap
+                + 0.5 * c.coeffs.k_t * c.state.displacement.length_squared()
+        })
+        .sum()
 }

@@ -199,7 +199,8 @@ fn sample_interval_row<Q: EventQueue>(
         temperature,
         fluct / (d * volume),
         p_coll,
-        (c.dissipated_pair + c.dissipated_wall) - (last.dissipated_pair + last.dissipated_wall),
+        (c.dissipated_pair + c.dissipated_wall + c.dissipated_soft)
+            - (last.dissipated_pair + last.dissipated_wall + last.dissipated_soft),
         reports as f64,
         centre.x,
         centre.y,
