@@ -23,7 +23,7 @@ fn cell_scan(c: &mut Criterion) {
     let (domain, particles) = fcc_system(4000, 0.1, 1);
     let mut grid = CellGrid::new(domain.lo, domain.hi, 1.0, [true; 3], particles.len());
     for (i, p) in particles.iter().enumerate() {
-        grid.place(i, p.pos, 0.5);
+        grid.place(i, p.pos);
     }
     let cells: Vec<[usize; 3]> = particles.iter().map(|p| grid.coords(p.pos)).collect();
     let mut group = c.benchmark_group("cell_scan");
@@ -32,7 +32,7 @@ fn cell_scan(c: &mut Criterion) {
         b.iter(|| {
             let mut sum = 0u32;
             for &cell in &cells {
-                grid.for_each_near_cell(cell, |e, _| sum = sum.wrapping_add(e.index));
+                grid.for_each_near_cell(cell, |j, _| sum = sum.wrapping_add(j));
             }
             black_box(sum)
         })
@@ -41,8 +41,8 @@ fn cell_scan(c: &mut Criterion) {
         b.iter(|| {
             let mut sum = 0u32;
             for (k, &cell) in cells.iter().enumerate() {
-                grid.for_each_in_new_layer(cell, k % 3, k % 2 == 0, |e, _| {
-                    sum = sum.wrapping_add(e.index)
+                grid.for_each_in_new_layer(cell, k % 3, k % 2 == 0, |j, _| {
+                    sum = sum.wrapping_add(j)
                 });
             }
             black_box(sum)

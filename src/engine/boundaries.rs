@@ -181,8 +181,8 @@ impl<Q: EventQueue> Engine<Q> {
         }
         let mut overlaps = false;
         let now = self.now;
-        self.cells.for_each_near(p.pos, |e, _| {
-            let j = e.index as usize;
+        self.cells.for_each_near(p.pos, |j, _| {
+            let j = j as usize;
             let kj = &self.kin[j];
             let d = p.pos - kj.position_at(now);
             let d = d + self.image_shift[self.domain.image_code(d) as usize];

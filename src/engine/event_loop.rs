@@ -201,7 +201,9 @@ impl<Q: EventQueue> Engine<Q> {
     #[inline]
     pub(super) fn predict_all(&mut self) {
         self.queue.clear();
-        let mut predictions = std::mem::take(&mut self.prediction_buffer);
+        // Dropped at the end: kept, it would cost 40 bytes per particle
+        // for the whole run.
+        let mut predictions = Vec::new();
         let engine = &*self;
         (0..self.kin.len())
             .into_par_iter()
@@ -213,7 +215,6 @@ impl<Q: EventQueue> Engine<Q> {
                 self.apply(i, p);
             }
         }
-        self.prediction_buffer = predictions;
         self.needs_prediction = false;
     }
 
@@ -242,9 +243,9 @@ impl<Q: EventQueue> Engine<Q> {
             }
             NeighbourSearch::Cells => {
                 // At least 3 cells per periodic axis: images are exact.
-                self.cells.for_each_near_cell(self.cell_of[i], |e, image| {
-                    if e.index as usize != i {
-                        let entry = neighbours::pack(e.index, image.unwrap_or(IDENTITY_IMAGE));
+                self.cells.for_each_near_cell(self.cell(i), |j, image| {
+                    if j as usize != i {
+                        let entry = neighbours::pack(j, image.unwrap_or(IDENTITY_IMAGE));
                         search.consider(entry, &self.kin, &self.is_soft, &self.image_shift);
                     }
                 });
@@ -282,9 +283,9 @@ impl<Q: EventQueue> Engine<Q> {
         let (best, event) = self.boundary_event(i, &ki);
         let mut search = PairSearch::new(self, i, ki);
         self.cells
-            .for_each_in_new_layer(self.cell_of[i], axis, up, |e, image| {
-                if e.index as usize != i {
-                    let entry = neighbours::pack(e.index, image.unwrap_or(IDENTITY_IMAGE));
+            .for_each_in_new_layer(self.cell(i), axis, up, |j, image| {
+                if j as usize != i {
+                    let entry = neighbours::pack(j, image.unwrap_or(IDENTITY_IMAGE));
                     search.consider(entry, &self.kin, &self.is_soft, &self.image_shift);
                 }
             });
@@ -314,7 +315,7 @@ impl<Q: EventQueue> Engine<Q> {
                 geometry::shell_exit_time(ki.pos - self.shells[i].centre, ki.vel, self.config.skin),
                 SHELL_EXIT,
             ),
-            NeighbourSearch::Cells => self.cell_exit(ki.pos, ki.vel, self.cell_of[i]),
+            NeighbourSearch::Cells => self.cell_exit(ki.pos, ki.vel, self.cell(i)),
         };
         // Hybrid: a soft particle meets walls and other soft particles
         // through contact forces, not events.

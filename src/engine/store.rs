@@ -45,6 +45,16 @@ pub(super) struct Shell {
     pub(super) reach: f64,
 }
 
+impl Shell {
+    /// The reach rounded up to f32 and back (m): the test that links two
+    /// shells uses it (slightly generous lists are safe, missing pairs
+    /// would not be), as it did when the grid stored the reach as f32.
+    #[inline]
+    pub(super) fn rounded_reach(&self) -> f64 {
+        f64::from((self.reach as f32).next_up())
+    }
+}
+
 /// Position, velocity, radius and the time they refer to: one cache line.
 #[derive(Clone, Copy, Debug, Default)]
 #[repr(C, align(64))]
@@ -119,12 +129,18 @@ impl<Q: EventQueue> Engine<Q> {
         self.counter = vec![0; n];
         self.scheduled = vec![SHELL_EXIT; n];
         self.face_mask = vec![0; n];
-        self.cell_of = vec![[0; 3]; n];
-        self.pair_candidate = vec![PairCandidate::NONE; n];
+        if self.uses_cells() {
+            self.cell_of = vec![[0; 3]; n];
+            self.pair_candidate = vec![PairCandidate::NONE; n];
+        }
         self.free_slots.clear();
         self.queue.clear();
-        self.lists = NeighbourLists::new(n, self.lists.stride());
-        self.cells = self.cells.emptied(n);
+        // The old lists are freed before the new are allocated, so that
+        // the peak memory never holds both.
+        let stride = self.lists.stride();
+        self.lists = NeighbourLists::default();
+        self.lists = NeighbourLists::new(n, stride);
+        self.cells.empty(n);
         for i in 0..n {
             self.shells[i].centre = self.kin[i].pos;
             self.enter_grid(i);
