@@ -663,6 +663,34 @@ mod tests {
         bonds
     }
 
+    /// The per-structure breakdown adds up to the engine's total, names
+    /// the structures of the chosen search, and the biggest arrays are
+    /// there: kinematics (64 bytes a particle) and, in lists mode, the
+    /// lists (at least 4 entries of 4 bytes).
+    #[test]
+    fn memory_breakdown_adds_up_to_the_total() {
+        for (phi, search) in [(0.3, NeighbourSearch::Lists), (0.1, NeighbourSearch::Cells)] {
+            let r = run(&BenchOptions {
+                n: 500,
+                phi,
+                equilibrate: 1.0,
+                measure: 1.0,
+                ..Default::default()
+            });
+            assert_eq!(r.neighbours, search);
+            let sum: f64 = r.memory_bytes_per_particle.values().sum();
+            // The total is floored to whole bytes.
+            assert!((sum - r.bytes_per_particle as f64).abs() < 1.0, "{r:?}");
+            assert_eq!(r.memory_bytes_per_particle["kinematics"], 64.0);
+            let lists = r.memory_bytes_per_particle["neighbour_lists"];
+            let cell_of = r.memory_bytes_per_particle["cell_of"];
+            match search {
+                NeighbourSearch::Lists => assert!(lists >= 16.0 && cell_of == 0.0, "{r:?}"),
+                NeighbourSearch::Cells => assert!(cell_of == 12.0, "{r:?}"),
+            }
+        }
+    }
+
     #[test]
     fn q6_of_ideal_lattices_matches_steinhardt() {
         // Steinhardt, Nelson & Ronchetti (1983), Table I: q6 = 0.57452 (FCC),

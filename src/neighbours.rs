@@ -35,8 +35,15 @@ pub fn unpack(entry: u32) -> (u32, u32) {
     (entry & INDEX_MASK, entry >> INDEX_BITS)
 }
 
+/// Entries added to the stride of [`NeighbourLists`] when a list fills
+/// up. Small, so that the stride ends close to the longest list (a
+/// geometric growth left up to a third of the array unused at N = 10⁶).
+pub const LIST_STRIDE_STEP: usize = 4;
+
 /// Per-particle neighbour lists in one flat array with a common stride,
-/// grown when any list fills up.
+/// grown by [`LIST_STRIDE_STEP`] entries, in place, when any list fills
+/// up: the stride follows the longest list, and growing never holds two
+/// copies of the array.
 #[derive(Clone, Debug, Default)]
 pub struct NeighbourLists {
     stride: usize,
@@ -101,15 +108,15 @@ impl NeighbourLists {
     }
 
     fn grow(&mut self) {
-        let new_stride = self.stride * 3 / 2 + 4;
-        let mut entries = vec![0; self.len.len() * new_stride];
-        for (i, &n) in self.len.iter().enumerate() {
-            let n = n as usize;
-            entries[i * new_stride..i * new_stride + n]
-                .copy_from_slice(&self.entries[i * self.stride..i * self.stride + n]);
+        let (old, new) = (self.stride, self.stride + LIST_STRIDE_STEP);
+        // A large block grows by remapping its pages (no copy); the
+        // lists then move up, last first, so that none is overwritten.
+        self.entries.resize(self.len.len() * new, 0);
+        for (i, &n) in self.len.iter().enumerate().rev() {
+            self.entries
+                .copy_within(i * old..i * old + n as usize, i * new);
         }
-        self.entries = entries;
-        self.stride = new_stride;
+        self.stride = new;
     }
 }
 

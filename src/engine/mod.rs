@@ -386,7 +386,12 @@ impl<Q: EventQueue> Engine<Q> {
             step_collisions: Vec::with_capacity(n),
             free_slots: Vec::new(),
             next_id: 0,
-            lists: NeighbourLists::new(n, 24),
+            // Cells mode keeps no lists.
+            lists: if config.neighbours == NeighbourSearch::Lists {
+                NeighbourLists::new(n, 8)
+            } else {
+                NeighbourLists::default()
+            },
             queue: Q::with_capacity(n),
             rng: Xoshiro256PlusPlus::seed_from_u64(config.seed),
             config,
@@ -540,7 +545,9 @@ impl<Q: EventQueue> Engine<Q> {
         self.step_collisions.push(0);
         self.is_soft.push(false);
         let slots = self.kin.len();
-        self.lists.resize(slots);
+        if !self.uses_cells() {
+            self.lists.resize(slots);
+        }
         self.cells.resize(slots);
         slots - 1
     }

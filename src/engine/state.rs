@@ -133,7 +133,13 @@ impl<Q: EventQueue> Engine<Q> {
             free_slots: self.free_slots.clone(),
             next_id: self.next_id,
             lists: (0..self.kin.len())
-                .map(|i| self.lists.list(i).to_vec())
+                .map(|i| {
+                    if self.uses_cells() {
+                        Vec::new()
+                    } else {
+                        self.lists.list(i).to_vec()
+                    }
+                })
                 .collect(),
             cells: self
                 .cells
@@ -167,6 +173,7 @@ impl<Q: EventQueue> Engine<Q> {
         let dims = self.cells.dims();
         let cells = (dims[0] * dims[1] * dims[2]) as u64;
         if state.lists.len() != n
+            || (self.uses_cells() && state.lists.iter().any(|l| !l.is_empty()))
             || state
                 .lists
                 .iter()
@@ -241,7 +248,11 @@ impl<Q: EventQueue> Engine<Q> {
         self.turned_soft.clear();
         self.free_slots = state.free_slots;
         self.next_id = state.next_id;
-        let mut lists = NeighbourLists::new(n, self.lists.stride());
+        let mut lists = if self.uses_cells() {
+            NeighbourLists::default()
+        } else {
+            NeighbourLists::new(n, self.lists.stride())
+        };
         for (i, list) in state.lists.iter().enumerate() {
             for &entry in list {
                 lists.push(i, entry);
