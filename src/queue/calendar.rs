@@ -505,6 +505,9 @@ impl EventQueue for CalendarQueue {
         }
         self.len = 0;
         self.staged = true;
+        // Every event will gather in the overflow until the next rebuild:
+        // room for all at once, without a doubling's slack.
+        self.overflow.reserve_exact(self.slots.len());
     }
 
     fn heap_bytes(&self) -> usize {
