@@ -109,9 +109,12 @@ impl NeighbourLists {
 
     fn grow(&mut self) {
         let (old, new) = (self.stride, self.stride + LIST_STRIDE_STEP);
-        // A large block grows by remapping its pages (no copy); the
-        // lists then move up, last first, so that none is overwritten.
-        self.entries.resize(self.len.len() * new, 0);
+        // A large block grows by remapping its pages (no copy); exactly,
+        // not to a doubled capacity. The lists then move up, last first,
+        // so that none is overwritten.
+        let size = self.len.len() * new;
+        self.entries.reserve_exact(size - self.entries.len());
+        self.entries.resize(size, 0);
         for (i, &n) in self.len.iter().enumerate().rev() {
             self.entries
                 .copy_within(i * old..i * old + n as usize, i * new);
@@ -551,6 +554,13 @@ mod tests {
         l.push(2, pack(7, 5));
         assert_eq!(l.list(1).len(), 10);
         assert_eq!(unpack(l.list(2)[0]), (7, 5));
+        // Grown by steps of 4 to the longest list, without spare capacity.
+        assert_eq!(l.stride(), 12);
+        assert_eq!(l.heap_bytes(), (3 + 3 * 12) * 4);
+        assert_eq!(
+            (0..10).map(|j| unpack(l.list(1)[j]).0).collect::<Vec<_>>(),
+            (0..10).collect::<Vec<_>>()
+        );
         l.remove_index(1, 3);
         assert_eq!(l.list(1).len(), 9);
         assert!(l.list(1).iter().all(|&e| unpack(e).0 != 3));

@@ -361,6 +361,7 @@ impl<Q: EventQueue> Engine<Q> {
             1e-10
         };
         let n = particles.len();
+        let cells_mode = config.neighbours == NeighbourSearch::Cells;
         let mut engine = Engine {
             cells: CellGrid::new(domain.lo, domain.hi, cell_width, periodic, n),
             domain,
@@ -379,8 +380,8 @@ impl<Q: EventQueue> Engine<Q> {
             scheduled: Vec::with_capacity(n),
             shells: Vec::with_capacity(n),
             face_mask: Vec::with_capacity(n),
-            cell_of: Vec::new(),
-            pair_candidate: Vec::new(),
+            cell_of: Vec::with_capacity(if cells_mode { n } else { 0 }),
+            pair_candidate: Vec::with_capacity(if cells_mode { n } else { 0 }),
             last_collision: Vec::with_capacity(n),
             last_partner: Vec::with_capacity(n),
             step_collisions: Vec::with_capacity(n),
