@@ -5,7 +5,10 @@
 //!   crossing scans (`CellGrid::for_each_in_new_layer`);
 //! - `collisions`: the event loop of `edpm bench` (elastic spheres,
 //!   periodic cube, N = 4000), time per 1000 pair collisions, with cells
-//!   at φ = 0.1 and lists at φ = 0.3 and 0.45 (the `auto` choices).
+//!   at φ = 0.1 and lists at φ = 0.3 and 0.45 (the `auto` choices);
+//! - `list_rebuild`: renumbering in cell order and rebuilding every
+//!   neighbour list from the slot-only cell grid (`Engine::reorder_by_cell`,
+//!   N = 4000, φ = 0.3 and 0.45), per particle.
 
 use std::hint::black_box;
 use std::time::{Duration, Instant};
@@ -23,7 +26,7 @@ fn cell_scan(c: &mut Criterion) {
     let (domain, particles) = fcc_system(4000, 0.1, 1);
     let mut grid = CellGrid::new(domain.lo, domain.hi, 1.0, [true; 3], particles.len());
     for (i, p) in particles.iter().enumerate() {
-        grid.place(i, p.pos, 0.5);
+        grid.place(i, p.pos);
     }
     let cells: Vec<[usize; 3]> = particles.iter().map(|p| grid.coords(p.pos)).collect();
     let mut group = c.benchmark_group("cell_scan");
@@ -32,7 +35,7 @@ fn cell_scan(c: &mut Criterion) {
         b.iter(|| {
             let mut sum = 0u32;
             for &cell in &cells {
-                grid.for_each_near_cell(cell, |e, _| sum = sum.wrapping_add(e.index));
+                grid.for_each_near_cell(cell, |j, _| sum = sum.wrapping_add(j));
             }
             black_box(sum)
         })
@@ -41,8 +44,8 @@ fn cell_scan(c: &mut Criterion) {
         b.iter(|| {
             let mut sum = 0u32;
             for (k, &cell) in cells.iter().enumerate() {
-                grid.for_each_in_new_layer(cell, k % 3, k % 2 == 0, |e, _| {
-                    sum = sum.wrapping_add(e.index)
+                grid.for_each_in_new_layer(cell, k % 3, k % 2 == 0, |j, _| {
+                    sum = sum.wrapping_add(j)
                 });
             }
             black_box(sum)
@@ -95,10 +98,38 @@ fn collisions(c: &mut Criterion) {
     group.finish();
 }
 
+fn list_rebuild(c: &mut Criterion) {
+    let mut group = c.benchmark_group("list_rebuild");
+    for phi in [0.3, 0.45] {
+        let (domain, particles) = fcc_system(4000, phi, 1);
+        group.throughput(Throughput::Elements(particles.len() as u64));
+        let config = EngineConfig {
+            skin: 0.3,
+            seed: 1,
+            neighbours: NeighbourSearch::Lists,
+            ..Default::default()
+        };
+        let materials =
+            MaterialTable::single(6.0 / std::f64::consts::PI, ContactParams::ELASTIC_SMOOTH);
+        let mut engine: Engine<CalendarQueue> =
+            Engine::new(domain, materials, config, &particles).expect("FCC start");
+        // A melted fluid, so that the lists have their fluid lengths.
+        while engine.counters.pair_collisions < 5 * particles.len() as u64 {
+            engine.advance(0.1);
+        }
+        engine.end_flow_step();
+        group.bench_function(BenchmarkId::from_parameter(phi), |b| {
+            b.iter(|| engine.reorder_by_cell())
+        });
+        black_box(engine.kinetic_energy());
+    }
+    group.finish();
+}
+
 criterion_group! {
     name = benches;
     // Criterion's plotting backend panics here (no fonts): numbers only.
     config = Criterion::default().without_plots();
-    targets = cell_scan, collisions
+    targets = cell_scan, collisions, list_rebuild
 }
 criterion_main!(benches);

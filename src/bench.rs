@@ -125,12 +125,16 @@ pub struct BenchResult {
     pub pressure_reduced: f64,
     /// Carnahan–Starling β P σ³ at the same φ, for reference.
     pub pressure_carnahan_starling: f64,
-    /// The engine's own estimate ([`Engine::bytes_per_particle`]).
+    /// The engine's heap memory per particle ([`Engine::bytes_per_particle`])
+    /// at the end of the measurement.
     pub bytes_per_particle: usize,
-    /// Peak resident set size of the process (`VmHWM`, bytes) at the end
-    /// of the measurement, as the OS reports it: includes the program, the
-    /// initial particle vector (freed once the engine is built) and the
-    /// allocator's slack.
+    /// The same by structure ([`Engine::memory_breakdown`]), bytes per
+    /// particle.
+    pub memory_bytes_per_particle: std::collections::BTreeMap<&'static str, f64>,
+    /// Peak resident set size of the whole process (`VmHWM`, bytes) at the
+    /// end of the run, start-up and the final analysis included: what
+    /// `/usr/bin/time` reports as its maximum resident set. `None` where
+    /// the OS does not report it.
     pub peak_rss_bytes: Option<u64>,
     /// `peak_rss_bytes / n`.
     pub peak_rss_bytes_per_particle: Option<f64>,
@@ -152,29 +156,22 @@ pub fn carnahan_starling_z(phi: f64) -> f64 {
 }
 
 /// Resident set size of this process (bytes): `(current, peak)`, from
-/// `VmRSS` and `VmHWM` in /proc/self/status; where /proc is absent, the
-/// peak only, from getrusage's `ru_maxrss`.
+/// `VmRSS` and `VmHWM` in /proc/self/status (Linux). `None` where /proc
+/// does not give them: "not available" (other systems' `getrusage` units
+/// differ, and a wrong figure is worse than none).
 pub fn resident_set_bytes() -> (Option<u64>, Option<u64>) {
-    if let Ok(status) = std::fs::read_to_string("/proc/self/status") {
-        let field = |name: &str| {
-            status
-                .lines()
-                .find_map(|l| l.strip_prefix(name))
-                .and_then(|v| v.trim().strip_suffix("kB"))
-                .and_then(|v| v.trim().parse::<u64>().ok())
-                .map(|kib| kib * 1024)
-        };
-        return (field("VmRSS:"), field("VmHWM:"));
-    }
-    // SAFETY: getrusage writes into the struct we pass and has no other
-    // effect; an all-zero rusage is a valid initial value.
-    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
-    let ok = unsafe { libc::getrusage(libc::RUSAGE_SELF, &mut usage) } == 0;
-    // Linux reports ru_maxrss in KiB.
-    (
-        None,
-        (ok && usage.ru_maxrss > 0).then(|| usage.ru_maxrss as u64 * 1024),
-    )
+    let Ok(status) = std::fs::read_to_string("/proc/self/status") else {
+        return (None, None);
+    };
+    let field = |name: &str| {
+        status
+            .lines()
+            .find_map(|l| l.strip_prefix(name))
+            .and_then(|v| v.trim().strip_suffix("kB"))
+            .and_then(|v| v.trim().parse::<u64>().ok())
+            .map(|kib| kib * 1024)
+    };
+    (field("VmRSS:"), field("VmHWM:"))
 }
 
 /// Side of the periodic cube holding `count` unit spheres at packing
@@ -599,7 +596,7 @@ fn run_with<Q: EventQueue>(opts: &BenchOptions) -> BenchResult {
     let cpu_start = cpu_time();
     run_until(&mut engine, (opts.measure * n as f64) as u64);
     let cpu_seconds = cpu_time() - cpu_start;
-    let (rss, peak_rss) = resident_set_bytes();
+    let (rss, _) = resident_set_bytes();
     let collisions = engine.counters.pair_collisions - start.pair_collisions;
     let elapsed = engine.time() - t_start;
     let energy_end = engine.kinetic_energy().0;
@@ -607,12 +604,25 @@ fn run_with<Q: EventQueue>(opts: &BenchOptions) -> BenchResult {
     let virial = engine.counters.virial - start.virial;
     let positions: Vec<DVec3> = engine.particles().map(|p| p.pos).collect();
     let z = 1.0 + virial / (3.0 * n as f64 * temperature * elapsed);
+    let counters = engine.counters;
+    let skin = engine.skin();
+    let bytes_per_particle = engine.bytes_per_particle();
+    let memory_bytes_per_particle = engine
+        .memory_breakdown()
+        .into_iter()
+        .map(|(name, bytes)| (name, bytes as f64 / n as f64))
+        .collect();
+    // The analysis runs without the engine, so that it does not raise the
+    // peak that is reported below.
+    drop(engine);
+    let solid_fraction = solid_fraction(&positions, side);
+    let (_, peak_rss) = resident_set_bytes();
     BenchResult {
         n,
         phi: opts.phi,
         queue: opts.queue,
         neighbours,
-        skin: engine.skin(),
+        skin,
         start: initial,
         flow_step: opts.flow_step,
         collisions,
@@ -620,15 +630,16 @@ fn run_with<Q: EventQueue>(opts: &BenchOptions) -> BenchResult {
         collisions_per_cpu_second: collisions as f64 / cpu_seconds,
         pressure_reduced: rho * z,
         pressure_carnahan_starling: rho * carnahan_starling_z(opts.phi),
-        bytes_per_particle: engine.bytes_per_particle(),
+        bytes_per_particle,
+        memory_bytes_per_particle,
         peak_rss_bytes: peak_rss,
         peak_rss_bytes_per_particle: peak_rss.map(|b| b as f64 / n as f64),
         rss_bytes_per_particle: rss.map(|b| b as f64 / n as f64),
-        solid_fraction: solid_fraction(&positions, side),
-        neighbour_updates_per_collision: (engine.counters.neighbour_updates
-            - start.neighbour_updates) as f64
+        solid_fraction,
+        neighbour_updates_per_collision: (counters.neighbour_updates - start.neighbour_updates)
+            as f64
             / collisions as f64,
-        stale_events_per_collision: (engine.counters.stale_events - start.stale_events) as f64
+        stale_events_per_collision: (counters.stale_events - start.stale_events) as f64
             / collisions as f64,
         energy_drift: (energy_end - energy_start) / energy_start,
     }
@@ -650,6 +661,34 @@ mod tests {
             }
         }
         bonds
+    }
+
+    /// The per-structure breakdown adds up to the engine's total, names
+    /// the structures of the chosen search, and the biggest arrays are
+    /// there: kinematics (64 bytes a particle) and, in lists mode, the
+    /// lists (at least 4 entries of 4 bytes).
+    #[test]
+    fn memory_breakdown_adds_up_to_the_total() {
+        for (phi, search) in [(0.3, NeighbourSearch::Lists), (0.1, NeighbourSearch::Cells)] {
+            let r = run(&BenchOptions {
+                n: 500,
+                phi,
+                equilibrate: 1.0,
+                measure: 1.0,
+                ..Default::default()
+            });
+            assert_eq!(r.neighbours, search);
+            let sum: f64 = r.memory_bytes_per_particle.values().sum();
+            // The total is floored to whole bytes.
+            assert!((sum - r.bytes_per_particle as f64).abs() < 1.0, "{r:?}");
+            assert_eq!(r.memory_bytes_per_particle["kinematics"], 64.0);
+            let lists = r.memory_bytes_per_particle["neighbour_lists"];
+            let cell_of = r.memory_bytes_per_particle["cell_of"];
+            match search {
+                NeighbourSearch::Lists => assert!(lists >= 16.0 && cell_of == 0.0, "{r:?}"),
+                NeighbourSearch::Cells => assert!(cell_of == 12.0, "{r:?}"),
+            }
+        }
     }
 
     #[test]

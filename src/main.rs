@@ -337,6 +337,9 @@ fn bench_cli(opts: &BenchOptions) -> anyhow::Result<()> {
         return Err(anyhow::anyhow!("{msg}"));
     }
     let r = bench::run(opts);
+    if r.peak_rss_bytes.is_none() {
+        eprintln!("edpm: peak resident set size: not available (no /proc/self/status)");
+    }
     if r.solid_fraction > bench::CRYSTAL_WARNING_FRACTION {
         eprintln!(
             "edpm: warning: {:.0} % of the particles are solid-like at the end: \

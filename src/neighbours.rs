@@ -35,8 +35,15 @@ pub fn unpack(entry: u32) -> (u32, u32) {
     (entry & INDEX_MASK, entry >> INDEX_BITS)
 }
 
+/// Entries added to the stride of [`NeighbourLists`] when a list fills
+/// up. Small, so that the stride ends close to the longest list (a
+/// geometric growth left up to a third of the array unused at N = 10⁶).
+pub const LIST_STRIDE_STEP: usize = 4;
+
 /// Per-particle neighbour lists in one flat array with a common stride,
-/// grown when any list fills up.
+/// grown by [`LIST_STRIDE_STEP`] entries, in place, when any list fills
+/// up: the stride follows the longest list, and growing never holds two
+/// copies of the array.
 #[derive(Clone, Debug, Default)]
 pub struct NeighbourLists {
     stride: usize,
@@ -95,21 +102,30 @@ impl NeighbourLists {
         self.stride
     }
 
+    /// Heap memory of the lists (bytes).
+    pub fn heap_bytes(&self) -> usize {
+        (self.len.capacity() + self.entries.capacity()) * std::mem::size_of::<u32>()
+    }
+
     fn grow(&mut self) {
-        let new_stride = self.stride * 3 / 2 + 4;
-        let mut entries = vec![0; self.len.len() * new_stride];
-        for (i, &n) in self.len.iter().enumerate() {
-            let n = n as usize;
-            entries[i * new_stride..i * new_stride + n]
-                .copy_from_slice(&self.entries[i * self.stride..i * self.stride + n]);
+        let (old, new) = (self.stride, self.stride + LIST_STRIDE_STEP);
+        // A large block grows by remapping its pages (no copy); exactly,
+        // not to a doubled capacity. The lists then move up, last first,
+        // so that none is overwritten.
+        let size = self.len.len() * new;
+        self.entries.reserve_exact(size - self.entries.len());
+        self.entries.resize(size, 0);
+        for (i, &n) in self.len.iter().enumerate().rev() {
+            self.entries
+                .copy_within(i * old..i * old + n as usize, i * new);
         }
-        self.entries = entries;
-        self.stride = new_stride;
+        self.stride = new;
     }
 }
 
-/// One particle's shell as stored in its cell: centre, radius `R + δ`
-/// and slot, contiguous so that a neighbour search scans memory linearly.
+/// One particle's shell as a restart file records it in its cell
+/// ([`crate::engine::EngineState`]): centre, radius `R + δ` rounded up to
+/// f32, and slot. The grid itself holds slots only.
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 #[repr(C)]
 pub struct CellEntry {
@@ -119,7 +135,7 @@ pub struct CellEntry {
 }
 
 /// Most cells a [`CellGrid`] may have: 2²² (about 4.2 million: 17 MB of
-/// counts and at most 134 MB of entries). Beyond, the cells are widened
+/// counts and at most 67 MB of entries). Beyond, the cells are widened
 /// uniformly; wider cells stay correct, only slower.
 pub const MAX_CELLS: usize = 1 << 22;
 
@@ -141,14 +157,14 @@ pub const GRID_ENTRIES_PER_SLOT: usize = 16;
 /// particle slots, at most (for memory estimates before a run).
 pub fn grid_bytes_bound(cells: usize, slots: usize) -> usize {
     let budget = GRID_ENTRY_BUDGET.max(GRID_ENTRIES_PER_SLOT.saturating_mul(slots));
-    let entry = std::mem::size_of::<CellEntry>();
+    let entry = std::mem::size_of::<u32>();
     cells.saturating_mul(std::mem::size_of::<u32>())
         + budget.min(cells.saturating_mul(4)).saturating_mul(entry)
         + slots.saturating_mul(entry + std::mem::size_of::<(u32, u32)>())
 }
 
 /// Uniform grid of cells holding particles by shell centre. Each cell is a
-/// fixed-stride block of [`CellEntry`] in one flat array (the stride grows
+/// fixed-stride block of particle slots (u32) in one flat array (the stride grows
 /// when a cell overflows, within [`GRID_ENTRY_BUDGET`]; beyond it the
 /// cell's extra entries go to an overflow list); `position[i]` locates
 /// particle i for O(1) moves.
@@ -160,10 +176,13 @@ pub struct CellGrid {
     periodic: [bool; 3],
     stride: usize,
     len: Vec<u32>,
-    entries: Vec<CellEntry>,
+    /// Slots only (4 bytes an entry): a search reads the particles'
+    /// centres from the caller's own arrays, which the engine keeps in
+    /// cell order.
+    entries: Vec<u32>,
     /// Entries of cell `c` past `stride`, in order (only once the stride
     /// cannot grow within the budget).
-    overflow: HashMap<u32, Vec<CellEntry>>,
+    overflow: HashMap<u32, Vec<u32>>,
     /// (cell, offset in cell) of each particle, `NONE` cell when absent.
     position: Vec<(u32, u32)>,
     /// [`GRID_ENTRY_BUDGET`] (smaller in tests of the overflow lists).
@@ -239,7 +258,7 @@ impl CellGrid {
         } else {
             1
         };
-        grid.entries = vec![CellEntry::default(); total * grid.stride];
+        grid.entries = vec![0; total * grid.stride];
         grid
     }
 
@@ -253,19 +272,18 @@ impl CellGrid {
         self.position.resize(slots, (NONE, 0));
     }
 
-    /// The same grid with no particles, for `slots` slots.
-    pub fn emptied(&self, slots: usize) -> CellGrid {
-        CellGrid {
-            len: vec![0; self.len.len()],
-            overflow: HashMap::new(),
-            position: vec![(NONE, 0); slots],
-            ..self.clone()
-        }
+    /// Empties the grid and sizes it for `slots` slots, in place (a copy
+    /// would hold the old and new entries at once).
+    pub fn empty(&mut self, slots: usize) {
+        self.len.fill(0);
+        self.overflow.clear();
+        self.position.clear();
+        self.position.resize(slots, (NONE, 0));
     }
 
-    /// Every entry, cell by cell (flat cell index), each cell's entries in
+    /// Every entry, cell by cell (flat cell index), each cell's slots in
     /// their order: what a restart file keeps ([`CellGrid::refilled`]).
-    pub fn occupied(&self) -> Vec<(u32, CellEntry)> {
+    pub fn occupied(&self) -> Vec<(u32, u32)> {
         let mut out = Vec::new();
         for (cell, &n) in self.len.iter().enumerate() {
             for k in 0..n as usize {
@@ -280,24 +298,16 @@ impl CellGrid {
         out
     }
 
-    /// The same grid for `slots` slots holding exactly `occupied`
-    /// ([`CellGrid::occupied`]), each cell's entries in the same order.
-    pub fn refilled(&self, slots: usize, occupied: &[(u32, CellEntry)]) -> CellGrid {
-        let mut g = self.emptied(slots);
-        let d = g.cells;
-        for &(cell, e) in occupied {
+    /// Makes the grid, for `slots` slots, hold exactly `occupied`
+    /// ([`CellGrid::occupied`]), each cell's slots in the same order.
+    pub fn refill(&mut self, slots: usize, occupied: &[(u32, u32)]) {
+        self.empty(slots);
+        let d = self.cells;
+        for &(cell, index) in occupied {
             let c = cell as usize;
             let coords = [c % d[0], (c / d[0]) % d[1], c / (d[0] * d[1])];
-            // `place_in` stores the reach rounded up to f32: its f32
-            // predecessor rounds up to the stored value itself.
-            g.place_in(
-                e.index as usize,
-                coords,
-                e.centre,
-                f64::from(e.reach.next_down()),
-            );
+            self.place_in(index as usize, coords);
         }
-        g
     }
 
     /// Cells per axis.
@@ -341,28 +351,22 @@ impl CellGrid {
         c[0] + self.cells[0] * (c[1] + self.cells[1] * c[2])
     }
 
-    /// Puts particle `i` with shell `centre` and radius `reach` into the
-    /// cell containing `centre`, removing it from any cell it was in.
-    pub fn place(&mut self, i: usize, centre: DVec3, reach: f64) {
-        self.place_in(i, self.coords(centre), centre, reach);
+    /// Puts particle `i` with shell `centre` into the cell containing
+    /// `centre`, removing it from any cell it was in.
+    pub fn place(&mut self, i: usize, centre: DVec3) {
+        self.place_in(i, self.coords(centre));
     }
 
-    /// As [`CellGrid::place`], into the given cell whatever `centre` says
-    /// (a particle that just crossed a face may sit a round-off outside).
-    pub fn place_in(&mut self, i: usize, c: [usize; 3], centre: DVec3, reach: f64) {
+    /// As [`CellGrid::place`], into cell `c` (a particle that just crossed
+    /// a face may sit a round-off outside it).
+    pub fn place_in(&mut self, i: usize, c: [usize; 3]) {
         self.remove(i);
         let cell = self.flat(c);
         let k = self.len[cell] as usize;
         if k == self.stride && self.len.len() * self.stride * 2 <= self.entry_budget() {
             self.grow();
         }
-        // Round the reach up so that f32 storage never shrinks a shell.
-        let reach = (reach as f32).next_up();
-        let entry = CellEntry {
-            centre,
-            reach,
-            index: i as u32,
-        };
+        let entry = i as u32;
         if k < self.stride {
             self.entries[cell * self.stride + k] = entry;
         } else {
@@ -373,7 +377,7 @@ impl CellGrid {
     }
 
     /// Entry `k` of `cell` (in place or in the overflow list).
-    fn entry_mut(&mut self, cell: usize, k: usize) -> &mut CellEntry {
+    fn entry_mut(&mut self, cell: usize, k: usize) -> &mut u32 {
         if k < self.stride {
             &mut self.entries[cell * self.stride + k]
         } else {
@@ -396,7 +400,7 @@ impl CellGrid {
         if k != last {
             let moved = *self.entry_mut(cell, last);
             *self.entry_mut(cell, k) = moved;
-            self.position[moved.index as usize].1 = k as u32;
+            self.position[moved as usize].1 = k as u32;
         }
         if last >= self.stride {
             let key = cell as u32;
@@ -415,7 +419,7 @@ impl CellGrid {
     fn grow(&mut self) {
         let old = self.stride;
         let new_stride = old * 2;
-        let mut entries = vec![CellEntry::default(); self.len.len() * new_stride];
+        let mut entries = vec![0; self.len.len() * new_stride];
         for (cell, &n) in self.len.iter().enumerate() {
             let n = (n as usize).min(old);
             entries[cell * new_stride..cell * new_stride + n]
@@ -436,25 +440,25 @@ impl CellGrid {
     /// Heap memory of the grid (bytes).
     pub fn heap_bytes(&self) -> usize {
         let overflow: usize = self.overflow.values().map(Vec::capacity).sum();
-        (self.entries.len() + overflow) * std::mem::size_of::<CellEntry>()
+        (self.entries.len() + overflow) * std::mem::size_of::<u32>()
             + self.len.len() * std::mem::size_of::<u32>()
             + self.position.len() * std::mem::size_of::<(u32, u32)>()
     }
 
-    /// Calls `f(entry, image)` once for every entry in the cell of `p` and
+    /// Calls `f(slot, image)` once for every particle in the cell of `p` and
     /// its neighbouring cells (wrapping on periodic axes; each cell visited
     /// once even when an axis has fewer than three cells). `image` is the
     /// periodic image code (see [`crate::domain::Domain::image_code`]) of the
     /// shift that brings the entry next to `p`, known from the wrap of the
     /// cell index; it is `None` when an axis has fewer than three cells and
     /// the caller must find the image from the displacement.
-    pub fn for_each_near(&self, p: DVec3, f: impl FnMut(&CellEntry, Option<u32>)) {
+    pub fn for_each_near(&self, p: DVec3, f: impl FnMut(u32, Option<u32>)) {
         self.for_each_near_cell(self.coords(p), f);
     }
 
     /// As [`CellGrid::for_each_near`], around cell `c`.
     #[inline]
-    pub fn for_each_near_cell(&self, c: [usize; 3], f: impl FnMut(&CellEntry, Option<u32>)) {
+    pub fn for_each_near_cell(&self, c: [usize; 3], f: impl FnMut(u32, Option<u32>)) {
         self.for_each_in_block(c, [-1; 3], [1; 3], f);
     }
 
@@ -469,7 +473,7 @@ impl CellGrid {
         c: [usize; 3],
         axis: usize,
         up: bool,
-        f: impl FnMut(&CellEntry, Option<u32>),
+        f: impl FnMut(u32, Option<u32>),
     ) {
         let (mut lo, mut hi) = ([-1; 3], [1; 3]);
         let offset = if up { 1 } else { -1 };
@@ -477,7 +481,7 @@ impl CellGrid {
         self.for_each_in_block(c, lo, hi, f);
     }
 
-    /// Calls `f(entry, image)` for every entry of the cells at offsets
+    /// Calls `f(slot, image)` for every particle of the cells at offsets
     /// `lo..=hi` (each within −1..=1) per axis from cell `c`, wrapping on
     /// periodic axes, each cell once (see [`CellGrid::for_each_near`]).
     #[inline]
@@ -486,7 +490,7 @@ impl CellGrid {
         c: [usize; 3],
         lo: [i64; 3],
         hi: [i64; 3],
-        mut f: impl FnMut(&CellEntry, Option<u32>),
+        mut f: impl FnMut(u32, Option<u32>),
     ) {
         // Per axis: (cell index, image component 0/1/2 for shift -L/0/+L).
         let mut ranges = [[(0usize, 1u32); 3]; 3];
@@ -521,13 +525,13 @@ impl CellGrid {
                     let base = cell * self.stride;
                     let image = exact.then_some(ix + 3 * iy + 9 * iz);
                     let n = self.len[cell] as usize;
-                    for e in &self.entries[base..base + n.min(self.stride)] {
+                    for &e in &self.entries[base..base + n.min(self.stride)] {
                         f(e, image);
                     }
                     if n > self.stride
                         && let Some(list) = self.overflow.get(&(cell as u32))
                     {
-                        for e in list {
+                        for &e in list {
                             f(e, image);
                         }
                     }
@@ -550,6 +554,13 @@ mod tests {
         l.push(2, pack(7, 5));
         assert_eq!(l.list(1).len(), 10);
         assert_eq!(unpack(l.list(2)[0]), (7, 5));
+        // Grown by steps of 4 to the longest list, without spare capacity.
+        assert_eq!(l.stride(), 12);
+        assert_eq!(l.heap_bytes(), (3 + 3 * 12) * 4);
+        assert_eq!(
+            (0..10).map(|j| unpack(l.list(1)[j]).0).collect::<Vec<_>>(),
+            (0..10).collect::<Vec<_>>()
+        );
         l.remove_index(1, 3);
         assert_eq!(l.list(1).len(), 9);
         assert!(l.list(1).iter().all(|&e| unpack(e).0 != 3));
@@ -567,12 +578,12 @@ mod tests {
         g.budget_floor = 64 * 8;
         let inside = DVec3::new(1.5, 1.5, 1.5);
         for i in 0..30 {
-            g.place(i, inside + DVec3::splat(0.01 * i as f64), 0.6);
+            g.place(i, inside + DVec3::splat(0.01 * i as f64));
         }
         assert_eq!(g.stride, 8, "the stride grows within the budget only");
         let near = |g: &CellGrid| {
             let mut seen = Vec::new();
-            g.for_each_near(inside, |e, _| seen.push(e.index));
+            g.for_each_near(inside, |e, _| seen.push(e));
             seen.sort();
             seen
         };
@@ -585,18 +596,17 @@ mod tests {
         // Every particle's recorded position still points at itself.
         for &i in &expected {
             let (cell, k) = g.position[i as usize];
-            assert_eq!(g.entry_mut(cell as usize, k as usize).index, i);
+            assert_eq!(*g.entry_mut(cell as usize, k as usize), i);
         }
         // Moving particles elsewhere empties the overflow list.
         for &i in &expected {
             g.place(
                 i as usize,
                 DVec3::new(3.5, 0.5, 0.5 + 0.1 * (i % 30) as f64),
-                0.6,
             );
         }
         assert!(g.overflow.is_empty() || g.overflow.values().all(|l| !l.is_empty()));
-        assert!(g.heap_bytes() < 64 * 8 * 32 + 40 * 40 + 40 * 32 + 64 * 4 + 4096);
+        assert!(g.heap_bytes() < 64 * 8 * 4 + 40 * 8 + 40 * 4 + 64 * 4 + 4096);
     }
 
     #[test]
@@ -623,16 +633,16 @@ mod tests {
         let lo = DVec3::ZERO;
         let hi = DVec3::new(10.0, 10.0, 2.0);
         let mut g = CellGrid::new(lo, hi, 1.0, [true, false, true], 12);
-        g.place(0, DVec3::new(0.5, 0.5, 0.5), 0.6);
-        g.place(1, DVec3::new(9.5, 0.5, 1.5), 0.6); // across the periodic x face
-        g.place(2, DVec3::new(5.0, 5.0, 1.0), 0.6);
+        g.place(0, DVec3::new(0.5, 0.5, 0.5));
+        g.place(1, DVec3::new(9.5, 0.5, 1.5)); // across the periodic x face
+        g.place(2, DVec3::new(5.0, 5.0, 1.0));
         // Overfill one cell to force the stride to grow.
         for i in 3..12 {
-            g.place(i, DVec3::new(5.1, 5.1, 1.1), 0.6);
+            g.place(i, DVec3::new(5.1, 5.1, 1.1));
         }
         let near = |g: &CellGrid, p: DVec3| {
             let mut seen = Vec::new();
-            g.for_each_near(p, |e, _| seen.push(e.index));
+            g.for_each_near(p, |e, _| seen.push(e));
             seen.sort();
             seen
         };
@@ -643,7 +653,7 @@ mod tests {
         );
         g.remove(1);
         g.remove(5);
-        g.place(2, DVec3::new(0.1, 9.9, 0.1), 0.6);
+        g.place(2, DVec3::new(0.1, 9.9, 0.1));
         assert_eq!(near(&g, DVec3::new(0.2, 0.2, 0.2)), vec![0]);
         assert_eq!(
             near(&g, DVec3::new(5.0, 5.0, 1.0)),

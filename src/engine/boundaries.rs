@@ -74,11 +74,13 @@ impl<Q: EventQueue> Engine<Q> {
     pub(super) fn remove(&mut self, i: usize) -> NewParticle {
         self.sync(i);
         self.queue.remove(i as u32);
-        for k in 0..self.lists.list(i).len() {
-            let (j, _) = neighbours::unpack(self.lists.list(i)[k]);
-            self.lists.remove_index(j as usize, i as u32);
+        if !self.uses_cells() {
+            for k in 0..self.lists.list(i).len() {
+                let (j, _) = neighbours::unpack(self.lists.list(i)[k]);
+                self.lists.remove_index(j as usize, i as u32);
+            }
+            self.lists.clear(i);
         }
-        self.lists.clear(i);
         self.cells.remove(i);
         self.active[i] = false;
         self.counter[i] = self.counter[i].wrapping_add(1);
@@ -181,8 +183,8 @@ impl<Q: EventQueue> Engine<Q> {
         }
         let mut overlaps = false;
         let now = self.now;
-        self.cells.for_each_near(p.pos, |e, _| {
-            let j = e.index as usize;
+        self.cells.for_each_near(p.pos, |j, _| {
+            let j = j as usize;
             let kj = &self.kin[j];
             let d = p.pos - kj.position_at(now);
             let d = d + self.image_shift[self.domain.image_code(d) as usize];

@@ -201,19 +201,24 @@ impl<Q: EventQueue> Engine<Q> {
     #[inline]
     pub(super) fn predict_all(&mut self) {
         self.queue.clear();
-        let mut predictions = std::mem::take(&mut self.prediction_buffer);
-        let engine = &*self;
-        (0..self.kin.len())
-            .into_par_iter()
-            .with_min_len(PREDICTIONS_PER_TASK)
-            .map(|i| engine.active[i].then(|| engine.prediction(i)))
-            .collect_into_vec(&mut predictions);
-        for (i, p) in predictions.iter().enumerate() {
-            if let Some(p) = p {
-                self.apply(i, p);
+        // In chunks of slots: a buffer for every particle would add 40
+        // bytes per particle to the peak memory. Predictions read nothing
+        // that `apply` writes, so the chunks give the same queue.
+        let mut predictions = Vec::new();
+        let slots = self.kin.len();
+        for start in (0..slots).step_by(PREDICTION_CHUNK) {
+            let engine = &*self;
+            (start..slots.min(start + PREDICTION_CHUNK))
+                .into_par_iter()
+                .with_min_len(PREDICTIONS_PER_TASK)
+                .map(|i| engine.active[i].then(|| engine.prediction(i)))
+                .collect_into_vec(&mut predictions);
+            for (k, p) in predictions.iter().enumerate() {
+                if let Some(p) = p {
+                    self.apply(start + k, p);
+                }
             }
         }
-        self.prediction_buffer = predictions;
         self.needs_prediction = false;
     }
 
@@ -242,9 +247,9 @@ impl<Q: EventQueue> Engine<Q> {
             }
             NeighbourSearch::Cells => {
                 // At least 3 cells per periodic axis: images are exact.
-                self.cells.for_each_near_cell(self.cell_of[i], |e, image| {
-                    if e.index as usize != i {
-                        let entry = neighbours::pack(e.index, image.unwrap_or(IDENTITY_IMAGE));
+                self.cells.for_each_near_cell(self.cell(i), |j, image| {
+                    if j as usize != i {
+                        let entry = neighbours::pack(j, image.unwrap_or(IDENTITY_IMAGE));
                         search.consider(entry, &self.kin, &self.is_soft, &self.image_shift);
                     }
                 });
@@ -282,9 +287,9 @@ impl<Q: EventQueue> Engine<Q> {
         let (best, event) = self.boundary_event(i, &ki);
         let mut search = PairSearch::new(self, i, ki);
         self.cells
-            .for_each_in_new_layer(self.cell_of[i], axis, up, |e, image| {
-                if e.index as usize != i {
-                    let entry = neighbours::pack(e.index, image.unwrap_or(IDENTITY_IMAGE));
+            .for_each_in_new_layer(self.cell(i), axis, up, |j, image| {
+                if j as usize != i {
+                    let entry = neighbours::pack(j, image.unwrap_or(IDENTITY_IMAGE));
                     search.consider(entry, &self.kin, &self.is_soft, &self.image_shift);
                 }
             });
@@ -314,7 +319,7 @@ impl<Q: EventQueue> Engine<Q> {
                 geometry::shell_exit_time(ki.pos - self.shells[i].centre, ki.vel, self.config.skin),
                 SHELL_EXIT,
             ),
-            NeighbourSearch::Cells => self.cell_exit(ki.pos, ki.vel, self.cell_of[i]),
+            NeighbourSearch::Cells => self.cell_exit(ki.pos, ki.vel, self.cell(i)),
         };
         // Hybrid: a soft particle meets walls and other soft particles
         // through contact forces, not events.
@@ -405,6 +410,10 @@ impl<Q: EventQueue> Engine<Q> {
 
 /// Particles per rayon task in [`Engine::predict_all`].
 const PREDICTIONS_PER_TASK: usize = 512;
+
+/// Particles predicted per buffered chunk in [`Engine::predict_all`]
+/// (2.6 MB of predictions).
+const PREDICTION_CHUNK: usize = 1 << 16;
 
 /// A particle's next event: its delay (s), the event, and (cells mode) the
 /// best pair to keep for a partial prediction.

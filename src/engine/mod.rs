@@ -221,12 +221,11 @@ pub struct Engine<Q: EventQueue> {
     /// Bit `f` set when the shell (lists mode) or cell (cells mode) reaches
     /// domain face `f` (wall or outlet).
     face_mask: Vec<u8>,
-    /// Cells mode: the cell each particle is in.
-    cell_of: Vec<[usize; 3]>,
-    /// Cells mode: each particle's best pair at its last prediction.
+    /// Cells mode: the cell each particle is in (empty in lists mode).
+    cell_of: Vec<[u32; 3]>,
+    /// Cells mode: each particle's best pair at its last prediction
+    /// (empty in lists mode).
     pair_candidate: Vec<PairCandidate>,
-    /// Reused by [`Engine::predict_all`].
-    prediction_buffer: Vec<Option<event_loop::Prediction>>,
     last_collision: Vec<f64>,
     /// Slot of the last collision partner (`NO_PARTNER` after a wall).
     last_partner: Vec<u32>,
@@ -362,6 +361,7 @@ impl<Q: EventQueue> Engine<Q> {
             1e-10
         };
         let n = particles.len();
+        let cells_mode = config.neighbours == NeighbourSearch::Cells;
         let mut engine = Engine {
             cells: CellGrid::new(domain.lo, domain.hi, cell_width, periodic, n),
             domain,
@@ -380,15 +380,19 @@ impl<Q: EventQueue> Engine<Q> {
             scheduled: Vec::with_capacity(n),
             shells: Vec::with_capacity(n),
             face_mask: Vec::with_capacity(n),
-            cell_of: Vec::with_capacity(n),
-            pair_candidate: Vec::with_capacity(n),
-            prediction_buffer: Vec::new(),
+            cell_of: Vec::with_capacity(if cells_mode { n } else { 0 }),
+            pair_candidate: Vec::with_capacity(if cells_mode { n } else { 0 }),
             last_collision: Vec::with_capacity(n),
             last_partner: Vec::with_capacity(n),
             step_collisions: Vec::with_capacity(n),
             free_slots: Vec::new(),
             next_id: 0,
-            lists: NeighbourLists::new(n, 24),
+            // Cells mode keeps no lists.
+            lists: if config.neighbours == NeighbourSearch::Lists {
+                NeighbourLists::new(n, 8)
+            } else {
+                NeighbourLists::default()
+            },
             queue: Q::with_capacity(n),
             rng: Xoshiro256PlusPlus::seed_from_u64(config.seed),
             config,
@@ -424,8 +428,8 @@ impl<Q: EventQueue> Engine<Q> {
         for i in 0..engine.kin.len() {
             let (pi, ri) = (engine.kin[i].pos, engine.kin[i].radius);
             let mut worst: Option<(usize, f64)> = None;
-            engine.cells.for_each_near(pi, |e, image| {
-                let j = e.index as usize;
+            engine.cells.for_each_near(pi, |j, image| {
+                let j = j as usize;
                 if j <= i {
                     return;
                 }
@@ -510,8 +514,10 @@ impl<Q: EventQueue> Engine<Q> {
                 reach: p.radius + self.config.skin,
             };
             self.face_mask[s] = 0;
-            self.cell_of[s] = [0; 3];
-            self.pair_candidate[s] = PairCandidate::NONE;
+            if self.uses_cells() {
+                self.cell_of[s] = [0; 3];
+                self.pair_candidate[s] = PairCandidate::NONE;
+            }
             self.last_collision[s] = f64::NEG_INFINITY;
             self.last_partner[s] = NO_PARTNER;
             self.step_collisions[s] = 0;
@@ -531,14 +537,18 @@ impl<Q: EventQueue> Engine<Q> {
             reach: p.radius + self.config.skin,
         });
         self.face_mask.push(0);
-        self.cell_of.push([0; 3]);
-        self.pair_candidate.push(PairCandidate::NONE);
+        if self.uses_cells() {
+            self.cell_of.push([0; 3]);
+            self.pair_candidate.push(PairCandidate::NONE);
+        }
         self.last_collision.push(f64::NEG_INFINITY);
         self.last_partner.push(NO_PARTNER);
         self.step_collisions.push(0);
         self.is_soft.push(false);
         let slots = self.kin.len();
-        self.lists.resize(slots);
+        if !self.uses_cells() {
+            self.lists.resize(slots);
+        }
         self.cells.resize(slots);
         slots - 1
     }
@@ -646,26 +656,48 @@ impl<Q: EventQueue> Engine<Q> {
         (0..self.kin.len()).filter_map(|i| self.particle(i))
     }
 
-    /// Bytes of engine state per particle (all per-particle arrays,
-    /// neighbour lists at their current stride, and the cell links).
+    /// Whether partners are found in cells (the per-slot arrays of cells
+    /// mode are empty otherwise).
+    #[inline]
+    pub(super) fn uses_cells(&self) -> bool {
+        self.config.neighbours == NeighbourSearch::Cells
+    }
+
+    /// Heap memory of the engine by structure (bytes, allocated
+    /// capacity): what `edpm bench` reports per particle.
+    pub fn memory_breakdown(&self) -> Vec<(&'static str, usize)> {
+        fn bytes<T>(v: &Vec<T>) -> usize {
+            v.capacity() * std::mem::size_of::<T>()
+        }
+        vec![
+            ("kinematics", bytes(&self.kin)),
+            ("spin", bytes(&self.omega)),
+            ("inverse_mass", bytes(&self.inv_mass)),
+            ("material", bytes(&self.material)),
+            ("id", bytes(&self.id)),
+            ("active", bytes(&self.active)),
+            ("event_counter", bytes(&self.counter)),
+            ("scheduled_event", bytes(&self.scheduled)),
+            ("shell", bytes(&self.shells)),
+            ("face_mask", bytes(&self.face_mask)),
+            ("cell_of", bytes(&self.cell_of)),
+            ("pair_candidate", bytes(&self.pair_candidate)),
+            ("last_collision", bytes(&self.last_collision)),
+            ("last_partner", bytes(&self.last_partner)),
+            ("step_collisions", bytes(&self.step_collisions)),
+            ("is_soft", bytes(&self.is_soft)),
+            ("free_slots", bytes(&self.free_slots)),
+            ("neighbour_lists", self.lists.heap_bytes()),
+            ("cell_grid", self.cells.heap_bytes()),
+            ("event_queue", self.queue.heap_bytes()),
+        ]
+    }
+
+    /// Bytes of engine heap memory per particle slot (the sum of
+    /// [`Engine::memory_breakdown`] over the slots).
     pub fn bytes_per_particle(&self) -> usize {
-        use std::mem::size_of;
-        let per_slot = size_of::<Kinematics>()
-            + size_of::<DVec3>() // omega
-            + size_of::<f64>() * 2 // inverse mass, last collision
-            + size_of::<u16>()
-            + size_of::<u64>() // id
-            + size_of::<bool>()
-            + size_of::<u32>() * 3 // counter, last partner, collisions this step
-            + size_of::<Scheduled>()
-            + size_of::<Shell>()
-            + size_of::<u8>()
-            + size_of::<[usize; 3]>()
-            + size_of::<PairCandidate>()
-            + size_of::<u32>() * (self.lists.stride() + 1);
-        let queue = 16; // one (time, index) entry and a position per particle
-        let slots = self.kin.len().max(1);
-        per_slot + queue + self.cells.heap_bytes() / slots
+        let total: usize = self.memory_breakdown().iter().map(|&(_, b)| b).sum();
+        total / self.kin.len().max(1)
     }
 }
 

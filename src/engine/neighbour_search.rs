@@ -23,13 +23,18 @@ impl<Q: EventQueue> Engine<Q> {
         }
     }
 
+    /// Cells mode: the cell particle i is in.
+    #[inline]
+    pub(super) fn cell(&self, i: usize) -> [usize; 3] {
+        self.cell_of[i].map(|k| k as usize)
+    }
+
     /// Cells mode: records particle i in cell `c` and which domain faces
     /// that cell touches.
     #[inline]
     pub(super) fn move_to_cell(&mut self, i: usize, c: [usize; 3]) {
-        self.cell_of[i] = c;
-        self.cells
-            .place_in(i, c, self.kin[i].pos, self.kin[i].radius);
+        self.cell_of[i] = c.map(|k| k as u32);
+        self.cells.place_in(i, c);
         let dims = self.cells.dims();
         let mut mask = 0u8;
         for axis in 0..3 {
@@ -86,7 +91,7 @@ impl<Q: EventQueue> Engine<Q> {
     pub(super) fn cross_cell(&mut self, i: usize, face: Face) {
         let axis = (face / 2) as usize;
         let n = self.cells.dims()[axis];
-        let mut c = self.cell_of[i];
+        let mut c = self.cell(i);
         let size = self.domain.size()[axis];
         let mut shift = 0.0;
         if face % 2 == 1 {
@@ -152,24 +157,23 @@ impl<Q: EventQueue> Engine<Q> {
         self.lists.clear(i);
         self.shells[i].centre = centre;
         let ri = self.shells[i].reach;
-        self.cells.place(i, centre, ri);
+        self.cells.place(i, centre);
         // Disjoint field borrows: the grid is read while the lists change.
         let (lists, domain, shifts) = (&mut self.lists, &self.domain, &self.image_shift);
+        let shells = &self.shells;
         let periodic = self.periodic;
-        self.cells.for_each_near(centre, |e, image| {
-            let j = e.index as usize;
+        self.cells.for_each_near(centre, |j, image| {
+            let j = j as usize;
             if j == i {
                 return;
             }
-            let d = e.centre - centre;
+            let d = shells[j].centre - centre;
             let code = match image {
                 Some(code) => code,
                 None if periodic => domain.image_code(d),
                 None => IDENTITY_IMAGE,
             };
-            // The grid stores the reach rounded up to f32: slightly
-            // generous lists are safe, missing pairs would not be.
-            let reach = ri + e.reach as f64;
+            let reach = ri + shells[j].rounded_reach();
             if (d + shifts[code as usize]).length_squared() < reach * reach {
                 // Entry in i's list: j appears shifted by `code` relative to i.
                 lists.push(i, neighbours::pack(j as u32, code));

@@ -59,6 +59,9 @@ pub struct EngineState {
     /// Neighbour list of each slot (packed entries), in order.
     pub lists: Vec<Vec<u32>>,
     /// The cell grid's entries: flat cell index and entry, cell by cell.
+    /// Only the slots and their order are read back; the centre and reach
+    /// are the shell's (lists) or the particle's position and radius
+    /// (cells), for whoever reads the file.
     pub cells: Vec<(u32, CellEntry)>,
     pub rng: Xoshiro256PlusPlus,
     /// Absolute time of clock 0 (s) and its Neumaier round-off carry (s).
@@ -78,6 +81,20 @@ impl EngineState {
 }
 
 impl<Q: EventQueue> Engine<Q> {
+    /// Slot `j` as a restart file records it in its cell.
+    fn cell_entry(&self, j: usize) -> CellEntry {
+        let (centre, reach) = if self.uses_cells() {
+            (self.kin[j].pos, self.kin[j].radius)
+        } else {
+            (self.shells[j].centre, self.shells[j].reach)
+        };
+        CellEntry {
+            centre,
+            reach: (reach as f32).next_up(),
+            index: j as u32,
+        }
+    }
+
     /// The state between flow steps, for a restart file. Only for hard
     /// spheres, right after [`Engine::end_flow_step`] (clock 0, every
     /// particle synchronised); `Err` with the reason otherwise.
@@ -106,7 +123,7 @@ impl<Q: EventQueue> Engine<Q> {
                 shell_centre: self.shells[i].centre,
                 shell_reach: self.shells[i].reach,
                 face_mask: self.face_mask[i],
-                cell: self.cell_of[i].map(|c| c as u64),
+                cell: self.cell_of.get(i).map_or([0; 3], |c| c.map(u64::from)),
                 last_collision: self.last_collision[i],
                 last_partner: self.last_partner[i],
             })
@@ -116,9 +133,20 @@ impl<Q: EventQueue> Engine<Q> {
             free_slots: self.free_slots.clone(),
             next_id: self.next_id,
             lists: (0..self.kin.len())
-                .map(|i| self.lists.list(i).to_vec())
+                .map(|i| {
+                    if self.uses_cells() {
+                        Vec::new()
+                    } else {
+                        self.lists.list(i).to_vec()
+                    }
+                })
                 .collect(),
-            cells: self.cells.occupied(),
+            cells: self
+                .cells
+                .occupied()
+                .into_iter()
+                .map(|(cell, j)| (cell, self.cell_entry(j as usize)))
+                .collect(),
             rng: self.rng.clone(),
             time_origin: self.time_origin,
             time_origin_error: self.time_origin_error,
@@ -145,6 +173,7 @@ impl<Q: EventQueue> Engine<Q> {
         let dims = self.cells.dims();
         let cells = (dims[0] * dims[1] * dims[2]) as u64;
         if state.lists.len() != n
+            || (self.uses_cells() && state.lists.iter().any(|l| !l.is_empty()))
             || state
                 .lists
                 .iter()
@@ -202,14 +231,16 @@ impl<Q: EventQueue> Engine<Q> {
             })
             .collect();
         self.face_mask = state.slots.iter().map(|s| s.face_mask).collect();
-        self.cell_of = state
-            .slots
-            .iter()
-            .map(|s| s.cell.map(|c| c as usize))
-            .collect();
-        // Restored at a flow-step end: every particle is re-predicted in
-        // full, which refills the kept pairs of cells mode.
-        self.pair_candidate = vec![PairCandidate::NONE; n];
+        if self.uses_cells() {
+            self.cell_of = state
+                .slots
+                .iter()
+                .map(|s| s.cell.map(|c| c as u32))
+                .collect();
+            // Restored at a flow-step end: every particle is re-predicted
+            // in full, which refills the kept pairs of cells mode.
+            self.pair_candidate = vec![PairCandidate::NONE; n];
+        }
         self.last_collision = state.slots.iter().map(|s| s.last_collision).collect();
         self.last_partner = state.slots.iter().map(|s| s.last_partner).collect();
         self.step_collisions = vec![0; n];
@@ -217,14 +248,19 @@ impl<Q: EventQueue> Engine<Q> {
         self.turned_soft.clear();
         self.free_slots = state.free_slots;
         self.next_id = state.next_id;
-        let mut lists = NeighbourLists::new(n, self.lists.stride());
+        let mut lists = if self.uses_cells() {
+            NeighbourLists::default()
+        } else {
+            NeighbourLists::new(n, self.lists.stride())
+        };
         for (i, list) in state.lists.iter().enumerate() {
             for &entry in list {
                 lists.push(i, entry);
             }
         }
         self.lists = lists;
-        self.cells = self.cells.refilled(n, &state.cells);
+        let occupied: Vec<(u32, u32)> = state.cells.iter().map(|(c, e)| (*c, e.index)).collect();
+        self.cells.refill(n, &occupied);
         self.queue = Q::with_capacity(n);
         self.rng = state.rng;
         self.now = 0.0;

@@ -45,6 +45,16 @@ pub(super) struct Shell {
     pub(super) reach: f64,
 }
 
+impl Shell {
+    /// The reach rounded up to f32 and back (m): the test that links two
+    /// shells uses it (slightly generous lists are safe, missing pairs
+    /// would not be), as it did when the grid stored the reach as f32.
+    #[inline]
+    pub(super) fn rounded_reach(&self) -> f64 {
+        f64::from((self.reach as f32).next_up())
+    }
+}
+
 /// Position, velocity, radius and the time they refer to: one cache line.
 #[derive(Clone, Copy, Debug, Default)]
 #[repr(C, align(64))]
@@ -82,21 +92,51 @@ impl<Q: EventQueue> Engine<Q> {
     /// is by cell, then by id.
     pub fn reorder_by_cell(&mut self) {
         assert!(self.needs_prediction, "reorder only between flow steps");
-        let mut order: Vec<(usize, u64, usize)> = (0..self.kin.len())
+        // (cell, id, old slot), 16 bytes: cells and slots fit u32
+        // (`MAX_CELLS`, `MAX_PARTICLES`).
+        let mut order: Vec<(u32, u64, u32)> = (0..self.kin.len())
             .filter(|&i| self.active[i])
             .map(|i| {
                 let c = self.cells.coords(self.domain.wrap(self.kin[i].pos));
                 let d = self.cells.dims();
-                (c[0] + d[0] * (c[1] + d[1] * c[2]), self.id[i], i)
+                (
+                    (c[0] + d[0] * (c[1] + d[1] * c[2])) as u32,
+                    self.id[i],
+                    i as u32,
+                )
             })
             .collect();
         order.sort_unstable();
         let mut new_slot = vec![NO_PARTNER; self.kin.len()];
         for (k, &(_, _, old)) in order.iter().enumerate() {
-            new_slot[old] = k as u32;
+            new_slot[old as usize] = k as u32;
         }
-        fn permute<T: Copy>(v: &mut Vec<T>, order: &[(usize, u64, usize)]) {
-            *v = order.iter().map(|&(_, _, old)| v[old]).collect();
+        /// `v[k] = old v[order[k].2]`: in place along the permutation's
+        /// cycles when every slot is kept (no copy of the array at the
+        /// peak), by a gather into a new array when free slots go.
+        fn permute<T: Copy>(v: &mut Vec<T>, order: &[(u32, u64, u32)]) {
+            if order.len() != v.len() {
+                *v = order.iter().map(|&(_, _, old)| v[old as usize]).collect();
+                return;
+            }
+            let mut done = vec![false; v.len()];
+            for start in 0..v.len() {
+                if done[start] {
+                    continue;
+                }
+                let first = v[start];
+                let mut k = start;
+                loop {
+                    done[k] = true;
+                    let from = order[k].2 as usize;
+                    if from == start {
+                        v[k] = first;
+                        break;
+                    }
+                    v[k] = v[from];
+                    k = from;
+                }
+            }
         }
         permute(&mut self.kin, &order);
         permute(&mut self.omega, &order);
@@ -119,12 +159,20 @@ impl<Q: EventQueue> Engine<Q> {
         self.counter = vec![0; n];
         self.scheduled = vec![SHELL_EXIT; n];
         self.face_mask = vec![0; n];
-        self.cell_of = vec![[0; 3]; n];
-        self.pair_candidate = vec![PairCandidate::NONE; n];
+        if self.uses_cells() {
+            self.cell_of = vec![[0; 3]; n];
+            self.pair_candidate = vec![PairCandidate::NONE; n];
+        }
         self.free_slots.clear();
         self.queue.clear();
-        self.lists = NeighbourLists::new(n, self.lists.stride());
-        self.cells = self.cells.emptied(n);
+        // The old lists are freed before the new are allocated, so that
+        // the peak memory never holds both.
+        if !self.uses_cells() {
+            let stride = self.lists.stride();
+            self.lists = NeighbourLists::default();
+            self.lists = NeighbourLists::new(n, stride);
+        }
+        self.cells.empty(n);
         for i in 0..n {
             self.shells[i].centre = self.kin[i].pos;
             self.enter_grid(i);

@@ -17,9 +17,9 @@
 //! minimum. This holds for any time passed to `set`, even one earlier than the
 //! last minimum (it then joins the current heap).
 //!
-//! A ring bucket is one cache line holding up to [`LINE_CAP`] particle
+//! A ring bucket is half a cache line holding up to [`LINE_CAP`] particle
 //! indices (event times live in the per-particle slots), with a rarely used
-//! spill vector beyond that; so moving an event between buckets touches about
+//! spill vector beyond that (kept in a map, by bucket); so moving an event between buckets touches about
 //! three cache lines. Removal from a line is a scan of at most [`LINE_CAP`]
 //! indices; every other container records positions in the slots. Hence `set`
 //! and `remove` are O(1) outside the small current heap.
@@ -29,6 +29,8 @@
 //! construction), when only overflow events remain, and when running
 //! statistics show the buckets much too narrow (many empty buckets skipped)
 //! or too wide (crowded heap).
+
+use std::collections::HashMap;
 
 use super::EventQueue;
 use super::indexed_heap::{self, Entry};
@@ -48,8 +50,11 @@ const MAX_EVENTS_PER_LOAD: usize = 16;
 const CHECK_MIN_SETS: usize = 1024;
 /// Cap on bucket numbers (2^62), so that `cur + nb` never overflows.
 const MAX_BUCKET: f64 = 4_611_686_018_427_387_904.0;
-/// Indices held inline by a ring bucket.
-const LINE_CAP: usize = 15;
+/// Indices held inline by a ring bucket: with about
+/// [`EVENTS_PER_BUCKET`] events per bucket, a bucket holds more than 7 in
+/// about 0.1 % of cases (Poisson), so half a cache line per bucket
+/// suffices and the ring costs 32 bytes per bucket.
+const LINE_CAP: usize = 7;
 
 /// Slot `loc` of a particle without an event.
 const ABSENT: u32 = u32::MAX;
@@ -79,7 +84,7 @@ const NO_SLOT: Slot = Slot {
 
 /// The inline part of a ring bucket: `idx[..len]`, in any order.
 #[derive(Clone, Copy, Debug)]
-#[repr(C, align(64))]
+#[repr(C, align(32))]
 struct Line {
     len: u32,
     idx: [u32; LINE_CAP],
@@ -96,9 +101,10 @@ pub struct CalendarQueue {
     slots: Vec<Slot>,
     /// Current bucket, in heap order.
     heap: Vec<Entry>,
-    /// Ring of `nb` (a power of two) buckets: inline lines, then spills.
+    /// Ring of `nb` (a power of two) buckets: inline lines, then spills
+    /// (by bucket, only for buckets that have one).
     lines: Vec<Line>,
-    spills: Vec<Vec<u32>>,
+    spills: HashMap<u32, Vec<u32>>,
     /// Events in ring buckets, and how many of them are in spills.
     ring_len: usize,
     spill_len: usize,
@@ -183,7 +189,7 @@ impl CalendarQueue {
                 line.len += 1;
                 slot.pos = IN_LINE;
             } else {
-                let spill = &mut self.spills[b];
+                let spill = self.spills.entry(b as u32).or_default();
                 slot.pos = spill.len() as u32;
                 spill.push(e.i);
                 self.spill_len += 1;
@@ -236,7 +242,11 @@ impl CalendarQueue {
                 self.ring_len -= 1;
             }
             b => {
-                swap_remove(&mut self.spills[b as usize], &mut self.slots, pos);
+                let spill = self.spills.get_mut(&b).expect("slot says a spill holds it");
+                swap_remove(spill, &mut self.slots, pos);
+                if spill.is_empty() {
+                    self.spills.remove(&b);
+                }
                 self.ring_len -= 1;
                 self.spill_len -= 1;
             }
@@ -276,7 +286,7 @@ impl CalendarQueue {
 
     #[inline]
     fn bucket_is_empty(&self, b: usize) -> bool {
-        self.lines[b].len == 0 && (self.spill_len == 0 || self.spills[b].is_empty())
+        self.lines[b].len == 0 && (self.spill_len == 0 || !self.spills.contains_key(&(b as u32)))
     }
 
     /// Appends the events of ring bucket `b` to `out`, emptying the bucket.
@@ -291,12 +301,12 @@ impl CalendarQueue {
         };
         out.extend(self.lines[b].idx[..n].iter().map(entry));
         self.ring_len -= n;
-        if self.spill_len > 0 {
-            let spill = &mut self.spills[b];
+        if self.spill_len > 0
+            && let Some(spill) = self.spills.remove(&(b as u32))
+        {
             out.extend(spill.iter().map(entry));
             self.ring_len -= spill.len();
             self.spill_len -= spill.len();
-            spill.clear();
         }
     }
 
@@ -323,7 +333,9 @@ impl CalendarQueue {
             let e = self.scratch[k];
             self.place(e, self.bucket_of(e.t));
         }
-        self.scratch.clear();
+        // Freed rather than kept: after a rebuild it holds every event (16
+        // bytes per particle), and later redistributions are small.
+        self.scratch = Vec::new();
     }
 
     /// True when the statistics of the last check period show buckets far
@@ -398,13 +410,13 @@ impl EventQueue for CalendarQueue {
             slots: vec![NO_SLOT; n],
             heap: Vec::new(),
             lines: vec![EMPTY_LINE; nb],
-            spills: vec![Vec::new(); nb],
+            spills: HashMap::new(),
             ring_len: 0,
             spill_len: 0,
             overflow: Vec::with_capacity(n),
             overflow_min: u64::MAX,
             infinite: Vec::new(),
-            scratch: Vec::with_capacity(n),
+            scratch: Vec::new(),
             origin: 0.0,
             inv_width: 1.0,
             cur: 0,
@@ -483,11 +495,9 @@ impl EventQueue for CalendarQueue {
                 }
                 line.len = 0;
             }
-            if self.spill_len > 0 {
-                for spill in &mut self.spills {
-                    for i in spill.drain(..) {
-                        slots[i as usize] = NO_SLOT;
-                    }
+            for (_, spill) in self.spills.drain() {
+                for i in spill {
+                    slots[i as usize] = NO_SLOT;
                 }
             }
             self.ring_len = 0;
@@ -495,6 +505,20 @@ impl EventQueue for CalendarQueue {
         }
         self.len = 0;
         self.staged = true;
+        // Every event will gather in the overflow until the next rebuild:
+        // room for all at once, without a doubling's slack.
+        self.overflow.reserve_exact(self.slots.len());
+    }
+
+    fn heap_bytes(&self) -> usize {
+        use std::mem::size_of;
+        let spilled: usize = self.spills.values().map(Vec::capacity).sum();
+        self.slots.capacity() * size_of::<Slot>()
+            + self.lines.capacity() * size_of::<Line>()
+            + self.spills.capacity() * (size_of::<(u32, Vec<u32>)>() + 1)
+            + (spilled + self.infinite.capacity()) * size_of::<u32>()
+            + (self.heap.capacity() + self.overflow.capacity() + self.scratch.capacity())
+                * size_of::<Entry>()
     }
 }
 

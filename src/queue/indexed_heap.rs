@@ -183,4 +183,9 @@ impl EventQueue for IndexedHeap {
             self.pos[e.i as usize] = ABSENT;
         }
     }
+
+    fn heap_bytes(&self) -> usize {
+        self.heap.capacity() * std::mem::size_of::<Entry>()
+            + self.pos.capacity() * std::mem::size_of::<u32>()
+    }
 }

@@ -24,6 +24,8 @@ pub trait EventQueue: Sync {
     }
     /// Removes every event.
     fn clear(&mut self);
+    /// Heap memory held (bytes, allocated capacity), for memory reports.
+    fn heap_bytes(&self) -> usize;
 }
 
 pub mod calendar;

@@ -68,4 +68,10 @@ impl EventQueue for ReferenceQueue {
     fn clear(&mut self) {
         self.queue.clear();
     }
+
+    /// An estimate: the crate does not expose its allocations; per event a
+    /// key, a priority and an index-map entry with its hash slot.
+    fn heap_bytes(&self) -> usize {
+        self.queue.capacity() * (std::mem::size_of::<(u32, Reverse<Key>)>() + 3 * 8)
+    }
 }
