@@ -33,8 +33,11 @@ fn engine(s: &Scenario) -> Engine<IndexedHeap> {
     edpm::run::build_engine::<IndexedHeap>(s).unwrap_or_else(|e| panic!("{e:#}"))
 }
 
-/// One flow step as `edpm run` does it with first-order splitting (the
-/// default): full gravity kick, flight, synchronisation. No inlet feed.
+/// One flow step with first-order splitting (`time.splitting =
+/// "first-order"`; the default is second order): full gravity kick, flight,
+/// synchronisation. No inlet feed. The tests that use it check
+/// containment, counts, collapse reports and conservation, which hold for
+/// either splitting; none compares with an `edpm run`.
 fn flow_step(s: &Scenario, e: &mut Engine<IndexedHeap>) {
     let dt = s.time.dt_flow;
     if s.domain.gravity != DVec3::ZERO {

@@ -649,13 +649,18 @@ fn time_engine_output_rules() {
         "collisions.tc",
         "must be >= 0",
     );
+    // Second order is the default; first order must be selectable.
+    assert_eq!(
+        with(&[]).unwrap().time.splitting,
+        edpm::scenario::Splitting::SecondOrder
+    );
     let s = with(&[
-        "time.splitting=second-order",
+        "time.splitting=first-order",
         "engine.queue=calendar",
         "output.sample_interval=0.1",
     ])
     .unwrap();
-    assert_eq!(s.time.splitting, edpm::scenario::Splitting::SecondOrder);
+    assert_eq!(s.time.splitting, edpm::scenario::Splitting::FirstOrder);
     assert_eq!(s.engine.queue, edpm::queue::QueueKind::Calendar);
     assert_eq!(s.output.sample_interval, 0.1);
 }

@@ -72,6 +72,38 @@ fn legend_never_covers_data_when_lines_fill_every_corner() {
 }
 
 #[test]
+fn a_one_point_line_series_keeps_its_marker() {
+    // A line series of a single point (one setting of a knob in an
+    // accuracy chart) has no segment, but its marker must be drawn and its
+    // legend entry must not say "(no data)".
+    let layer = |points: Vec<(f64, f64)>| Layer {
+        label: "one".into(),
+        color: palette(0),
+        points,
+        line: Some(LineKind::Solid(2)),
+        marker: Some((Marker::ALL[0], 5)),
+        include_in_range: true,
+        guide: false,
+    };
+    let layers = vec![layer(vec![(2.0, 0.5)]), layer(vec![(1.0, 0.1), (3.0, 0.9)])];
+    let fig = XyFigure {
+        size: (1200, 800),
+        title: "t",
+        x_label: "x",
+        y_label: "y",
+        log_x: true,
+        log_y: true,
+        square: false,
+        x_pad: 0.02,
+    };
+    let layout = xy_layout(&fig, &layers).unwrap();
+    let geom = layer_geometry(&fig, &layers, &layout.x_axis, &layout.y_axis);
+    assert_eq!(geom[0], vec![vec![(2.0_f64.log10(), 0.5_f64.log10())]]);
+    assert_eq!(geom[1].len(), 1);
+    assert_eq!(geom[1][0].len(), 2);
+}
+
+#[test]
 fn parity_legend_never_covers_data() {
     // Points in all four corners of a shared (square) range.
     let corners = vec![

@@ -281,7 +281,7 @@ pub(super) fn plot_xy(path: &Path, fig: &XyFigure, layers: &[Layer]) -> anyhow::
 
 /// Drawable geometry per layer: its polylines in axis space, clipped to the
 /// axes (lines) or with the points outside left out (markers only).
-fn layer_geometry(
+pub(super) fn layer_geometry(
     fig: &XyFigure,
     layers: &[Layer],
     x_axis: &Axis,
@@ -293,7 +293,9 @@ fn layer_geometry(
             polylines(&l.points, fig.log_x, fig.log_y)
                 .iter()
                 .flat_map(|pl| {
-                    if l.line.is_some() {
+                    // A lone point has no segment to clip: it is kept (for
+                    // its marker) like the points of a marker-only series.
+                    if l.line.is_some() && pl.len() >= 2 {
                         clip_polyline(pl, x_axis, y_axis)
                     } else {
                         vec![

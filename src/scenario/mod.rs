@@ -322,7 +322,7 @@ pub struct InitialState {
 pub enum Splitting {
     /// Kick, then flight for `dt_flow`.
     FirstOrder,
-    /// Half kick, flight, half kick (Strang).
+    /// Half kick, flight, half kick (Strang); the default.
     SecondOrder,
 }
 
