@@ -17,17 +17,8 @@ fn temp_dir(name: &str) -> PathBuf {
     dir
 }
 
-/// Known defect: a gas run with second-order splitting (the default since
-/// it was chosen from results/accuracy) does not replay bit for bit (the
-/// riser differs from its checkpoint at the first one, flow step 20: the
-/// log or the replay does not apply the gas kick in two halves). Until that
-/// is fixed these tests pin first order, the splitting they were written
-/// for.
 fn scenario(path: &str, overrides: &[&str]) -> Scenario {
-    let o: Vec<String> = std::iter::once("time.splitting=first-order")
-        .chain(overrides.iter().copied())
-        .map(|s| s.to_string())
-        .collect();
+    let o: Vec<String> = overrides.iter().map(|s| s.to_string()).collect();
     Scenario::from_file_with_overrides(path, &o).unwrap()
 }
 
@@ -85,25 +76,39 @@ fn logged_and_verified(name: &str, s: &Scenario) -> (PathBuf, edpm::replay::Repl
 }
 
 /// The non-ideal riser (gas, an inlet at a solids flux, an outlet) and
-/// the jet bed (gas, a jet, dense collisions): one velocities block per
-/// flow step, replayed without the gas solver.
+/// the jet bed (gas, a jet, dense collisions), replayed without the gas
+/// solver: a velocities block after each kick, so one per flow step with
+/// first-order splitting and two (both half kicks) with second order (the
+/// default; the riser runs it, the jet bed first order).
 #[test]
 fn gas_runs_log_and_replay_bit_for_bit() {
-    for (name, path, t_end) in [
-        ("riser", "scenarios/riser-nonideal.toml", "time.t_end=0.03"),
-        ("jet", "scenarios/bubbling-bed-jet.toml", "time.t_end=0.02"),
+    for (name, path, set, blocks_per_step) in [
+        (
+            "riser",
+            "scenarios/riser-nonideal.toml",
+            "time.t_end=0.03",
+            2,
+        ),
+        (
+            "jet",
+            "scenarios/bubbling-bed-jet.toml",
+            "time.splitting=first-order",
+            1,
+        ),
     ] {
-        let s = scenario(path, &[t_end]);
+        let s = scenario(path, &["time.t_end=0.02", set]);
         let (log, outcome) = logged_and_verified(name, &s);
         let steps = edpm::run::flow_steps(s.time.t_end, s.time.dt_flow) as usize;
         let (velocities, states, _) = block_counts(&log);
-        assert_eq!((velocities, states), (steps, 0), "{name}");
+        assert_eq!((velocities, states), (blocks_per_step * steps, 0), "{name}");
         assert!(outcome.records > 0, "{name}");
     }
 }
 
 /// `replay --at T` of a long gas run is the state a run ending at T ends
 /// in, bit for bit: the velocities block at T belongs to the next step.
+/// First-order splitting: with second order, `--at T` leaves out the
+/// closing half kick at T (docs/event-log.md, known limitation).
 #[test]
 fn replay_at_a_time_of_a_gas_run_is_the_engine_state_then() {
     let jet = "scenarios/bubbling-bed-jet.toml";
@@ -114,14 +119,14 @@ fn replay_at_a_time_of_a_gas_run_is_the_engine_state_then() {
         ..Default::default()
     };
     run_scenario_with(
-        &scenario(jet, &["time.t_end=0.02"]),
+        &scenario(jet, &["time.t_end=0.02", "time.splitting=first-order"]),
         &dir.join("long"),
         &opts,
     )
     .unwrap();
     let short = dir.join("short");
     run_scenario_with(
-        &scenario(jet, &["time.t_end=0.01"]),
+        &scenario(jet, &["time.t_end=0.01", "time.splitting=first-order"]),
         &short,
         &RunOptions::default(),
     )

@@ -409,6 +409,11 @@ impl<Q: EventQueue> FlowLoop<'_, Q> {
         if s.time.splitting == Splitting::SecondOrder {
             if let Some(g) = self.gas.as_mut() {
                 g.finish_kicks(&mut self.engine);
+                // The second half kicks, like the first: an event log
+                // records the velocities they leave.
+                for r in self.recorders.iter_mut() {
+                    r.after_gas_kicks(&mut self.engine)?;
+                }
             } else if gravity != DVec3::ZERO && !self.engine.integrates_gravity() {
                 self.kick_all(gravity * (0.5 * dt))?;
             }
