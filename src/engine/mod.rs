@@ -424,19 +424,26 @@ impl<Q: EventQueue> Engine<Q> {
             let slot = engine.allocate_slot(p);
             engine.enter_grid(slot);
         }
-        // Overlap check against every particle in the neighbouring cells.
-        for i in 0..engine.kin.len() {
-            let (pi, ri) = (engine.kin[i].pos, engine.kin[i].radius);
+        engine.check_start_overlaps(start_overlap)?;
+        Ok(engine)
+    }
+
+    /// Refuses a start in which two particles overlap by more than
+    /// `start_overlap` of their contact distance (checked against every
+    /// particle in the neighbouring cells); names the deepest overlap.
+    fn check_start_overlaps(&self, start_overlap: f64) -> Result<(), EngineError> {
+        for i in 0..self.kin.len() {
+            let (pi, ri) = (self.kin[i].pos, self.kin[i].radius);
             let mut worst: Option<(usize, f64)> = None;
-            engine.cells.for_each_near(pi, |j, image| {
+            self.cells.for_each_near(pi, |j, image| {
                 let j = j as usize;
                 if j <= i {
                     return;
                 }
-                let d = engine.kin[j].pos - pi;
-                let code = image.unwrap_or_else(|| engine.domain.image_code(d));
-                let sigma = ri + engine.kin[j].radius;
-                let overlap = sigma - (d + engine.image_shift[code as usize]).length();
+                let d = self.kin[j].pos - pi;
+                let code = image.unwrap_or_else(|| self.domain.image_code(d));
+                let sigma = ri + self.kin[j].radius;
+                let overlap = sigma - (d + self.image_shift[code as usize]).length();
                 if overlap > start_overlap * sigma && worst.is_none_or(|w| overlap > w.1) {
                     worst = Some((j, overlap));
                 }
@@ -445,7 +452,7 @@ impl<Q: EventQueue> Engine<Q> {
                 return Err(EngineError::Overlap { a: i, b, overlap });
             }
         }
-        Ok(engine)
+        Ok(())
     }
 
     fn check_particle(&self, index: usize, p: &NewParticle) -> Result<(), EngineError> {
