@@ -682,6 +682,8 @@ mod tests {
             // The total is floored to whole bytes.
             assert!((sum - r.bytes_per_particle as f64).abs() < 1.0, "{r:?}");
             assert_eq!(r.memory_bytes_per_particle["kinematics"], 64.0);
+            // Smooth spheres that start without spin store none.
+            assert_eq!(r.memory_bytes_per_particle["spin"], 0.0);
             let lists = r.memory_bytes_per_particle["neighbour_lists"];
             let cell_of = r.memory_bytes_per_particle["cell_of"];
             match search {

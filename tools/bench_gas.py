@@ -7,12 +7,24 @@ seconds per simulated second, the time-averaged pressure drop and bed
 centre-of-mass height after the start-up (with their change against the
 smallest flow step), the largest Courant number and the collisions.
 
-Usage: python3 tools/bench_gas.py [--repeats 3] [--t-end 2.0] [--skip 0.5]
-       [--dt 5e-5,1e-4,2e-4] [--bin target/release/edpm] [SCENARIO]
+Repeats of one seed are bit-identical, so they measure timing noise only.
+`--seeds 7,11,13,17` runs each flow step once per seed instead (the
+scenario's `seed` set with `--set seed=S`): the averages are then means over
+independent realisations of the bed, given with their standard error, and
+the change against the smallest flow step with the combined standard error.
+This is what a flow-step comparison of a bubbling bed's height needs, since
+one realisation's 5 s average scatters by several per cent. `--jobs 2` runs
+two at a time (use it for accuracy only: the times then share the machine).
+
+Usage: python3 tools/bench_gas.py [--repeats 3 | --seeds 7,11] [--jobs 1]
+       [--t-end 2.0] [--skip 0.5] [--dt 5e-5,1e-4,2e-4]
+       [--bin target/release/edpm] [SCENARIO]
 """
 
 import argparse
+import concurrent.futures
 import csv
+import math
 import json
 import statistics
 import subprocess
@@ -21,10 +33,11 @@ import tempfile
 from pathlib import Path
 
 
-def run(binary, scenario, dt, t_end, out):
+def run(binary, scenario, dt, t_end, out, seed=None):
+    seed_args = ["--set", f"seed={seed}"] if seed is not None else []
     subprocess.run(
         [binary, "run", scenario, "--out", str(out), "--t-end", str(t_end),
-         "--set", f"time.dt_flow={dt}", "--quiet"],
+         "--set", f"time.dt_flow={dt}", "--quiet"] + seed_args,
         check=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     summary = json.loads((out / "summary.json").read_text())
     with open(out / "gas_timeseries.csv") as f:
@@ -39,44 +52,65 @@ def late_mean(rows, key, skip):
     return statistics.mean(values) if values else float("nan")
 
 
+def mean_and_error(values):
+    """Mean and its standard error (0 for a single value)."""
+    m = statistics.mean(values)
+    if len(values) < 2:
+        return m, 0.0
+    return m, statistics.stdev(values) / math.sqrt(len(values))
+
+
 def main():
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("scenario", nargs="?", default="scenarios/bubbling-bed-jet.toml")
     p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--seeds", help="comma-separated seeds, one run each (replaces --repeats)")
+    p.add_argument("--jobs", type=int, default=1, help="runs at a time")
     p.add_argument("--t-end", type=float, default=2.0)
     p.add_argument("--skip", type=float, default=0.5, help="start-up excluded from averages (s)")
     p.add_argument("--dt", default="5e-5,1e-4,2e-4")
     p.add_argument("--bin", default="target/release/edpm")
     a = p.parse_args()
+    seeds = [int(x) for x in a.seeds.split(",")] if a.seeds else [None] * a.repeats
+    dts = a.dt.split(",")
     rows = []
-    with tempfile.TemporaryDirectory() as tmp:
-        for dt in a.dt.split(","):
+    with tempfile.TemporaryDirectory() as tmp, \
+            concurrent.futures.ThreadPoolExecutor(max_workers=a.jobs) as pool:
+        jobs = {(dt, r): pool.submit(run, a.bin, a.scenario, dt, a.t_end,
+                                     Path(tmp) / f"dt{dt}-{r}", seed)
+                for dt in dts for r, seed in enumerate(seeds)}
+        for dt in dts:
             walls, cpus, drops, heights, courant, coll = [], [], [], [], [], []
-            for r in range(a.repeats):
-                out = Path(tmp) / f"dt{dt}-{r}"
-                s, gas, series = run(a.bin, a.scenario, dt, a.t_end, out)
+            for r in range(len(seeds)):
+                s, gas, series = jobs[(dt, r)].result()
                 walls.append(s["wall_seconds"] / s["t_end"])
                 cpus.append(s["cpu_seconds"] / s["t_end"])
                 drops.append(late_mean(gas, "pressure_drop_mean_Pa", a.skip))
-                heights.append(late_mean(series, "centre_of_mass_y_m", a.skip))
+                heights.append(2.0 * late_mean(series, "centre_of_mass_y_m", a.skip))
                 courant.append(s["gas"]["max_courant"])
                 coll.append(s["counters"]["pair_collisions"] + s["counters"]["wall_collisions"])
-                print(f"dt={dt} run {r}: {walls[-1]:.2f} s/s wall", file=sys.stderr)
+                print(f"dt={dt} run {r}: {walls[-1]:.2f} s/s wall, dp {drops[-1]:.1f} Pa, "
+                      f"height {heights[-1]:.4f} m", file=sys.stderr)
             rows.append((float(dt), statistics.median(walls), statistics.median(cpus),
-                         statistics.mean(drops), statistics.mean(heights),
+                         mean_and_error(drops), mean_and_error(heights),
                          max(courant), statistics.median(coll) / a.t_end))
     ref = rows[0]
+    runs = f"seeds {a.seeds}, one run each" if a.seeds else f"{a.repeats} runs per flow step"
     print(f"Scenario `{a.scenario}`, {a.t_end} s simulated, averages over "
-          f"t >= {a.skip} s, {a.repeats} runs per flow step (medians of time, "
-          "means of averages).\n")
+          f"t >= {a.skip} s, {runs} (medians of time, means of averages "
+          "± standard error over the runs), bed height = 2 × solids centroid.\n")
     print("| flow step (s) | wall s per simulated s | CPU s per simulated s | "
           "mean Δp (Pa) | Δp vs finest | bed height (m) | height vs finest | "
           "max Courant | collisions per simulated s |")
     print("|---|---|---|---|---|---|---|---|---|")
-    for dt, wall, cpu, dp, h, cour, coll in rows:
-        print(f"| {dt:g} | {wall:.2f} | {cpu:.2f} | {dp:.0f} | "
-              f"{(dp - ref[3]) / ref[3]:+.1%} | {h:.4f} | {(h - ref[4]) / ref[4]:+.1%} | "
-              f"{cour:.2f} | {coll:.3g} |")
+    for dt, wall, cpu, (dp, dp_err), (h, h_err), cour, coll in rows:
+        dp_diff = (dp - ref[3][0]) / ref[3][0]
+        dp_diff_err = math.hypot(dp_err, ref[3][1]) / ref[3][0]
+        h_diff = (h - ref[4][0]) / ref[4][0]
+        h_diff_err = math.hypot(h_err, ref[4][1]) / ref[4][0]
+        print(f"| {dt:g} | {wall:.2f} | {cpu:.2f} | {dp:.0f} ± {dp_err:.0f} | "
+              f"{dp_diff:+.1%} ± {dp_diff_err:.1%} | {h:.4f} ± {h_err:.4f} | "
+              f"{h_diff:+.1%} ± {h_diff_err:.1%} | {cour:.2f} | {coll:.3g} |")
 
 
 if __name__ == "__main__":

@@ -31,11 +31,11 @@ impl<Q: EventQueue> Engine<Q> {
                 id: self.id[i],
                 position: pos,
                 velocity: k.vel,
-                omega: self.omega[i],
+                omega: self.spins.get(i),
                 radius: k.radius,
                 outside_axis,
             };
-            if !(pos.is_finite() && k.vel.is_finite() && self.omega[i].is_finite()) {
+            if !(pos.is_finite() && k.vel.is_finite() && self.spins.get(i).is_finite()) {
                 return Some(bad(None));
             }
             // Soft spheres overlap walls: only the centre must stay inside.
@@ -98,7 +98,7 @@ impl<Q: EventQueue> Engine<Q> {
         NewParticle {
             pos: k.pos,
             vel: k.vel,
-            omega: self.omega[i],
+            omega: self.spins.get(i),
             radius: k.radius,
             material: self.material[i],
         }

@@ -127,8 +127,8 @@ impl<Q: EventQueue> Engine<Q> {
                 - collision::kinetic_energy(&b2);
             self.kin[i].vel = a2.vel;
             self.kin[j].vel = b2.vel;
-            self.omega[i] = a2.omega;
-            self.omega[j] = b2.omega;
+            self.spins.set(i, a2.omega);
+            self.spins.set(j, b2.omega);
             (imp.j, imp.kind, loss)
         } else {
             // Smooth fast path: J = J_n n with J_n from Eq. 20.
@@ -187,7 +187,7 @@ impl<Q: EventQueue> Engine<Q> {
         let (loss_normal, undissipated) =
             self.account_losses(n, (&a, &Body::WALL), &nominal, rule, loss);
         self.kin[i].vel = a2.vel;
-        self.omega[i] = a2.omega;
+        self.spins.set(i, a2.omega);
         self.counters.wall_collisions += 1;
         self.counters.dissipated_wall += loss;
         self.counters.wall_impulse[face as usize] -= imp.j;

@@ -123,7 +123,7 @@ impl<Q: EventQueue> Engine<Q> {
                 let s = &mut st.spheres[k];
                 s.pos = self.kin[i].position_at(self.now);
                 s.vel = self.kin[i].vel;
-                s.omega = self.omega[i];
+                s.omega = self.spins.get(i);
                 k += 1;
             } else {
                 self.drop_member(st, k);
@@ -160,7 +160,7 @@ impl<Q: EventQueue> Engine<Q> {
             st.spheres.push(SoftSphere::new(
                 k.position_at(self.now),
                 k.vel,
-                self.omega[i],
+                self.spins.get(i),
                 k.radius,
                 1.0 / self.inv_mass[i],
             ));
@@ -176,7 +176,7 @@ impl<Q: EventQueue> Engine<Q> {
         for (k, &i) in st.members.iter().enumerate() {
             self.sync(i);
             self.kin[i].vel = st.spheres[k].vel;
-            self.omega[i] = st.spheres[k].omega;
+            self.spins.set(i, st.spheres[k].omega);
             self.counter[i] = self.counter[i].wrapping_add(1);
             self.predict(i);
         }
@@ -195,7 +195,7 @@ impl<Q: EventQueue> Engine<Q> {
             }
             self.sync(i);
             st.spheres[k].pos = self.kin[i].pos;
-            st.spheres[k].set_velocity(self.kin[i].vel, self.omega[i]);
+            st.spheres[k].set_velocity(self.kin[i].vel, self.spins.get(i));
             k += 1;
         }
     }

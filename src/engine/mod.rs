@@ -35,7 +35,7 @@ pub use state::{EngineState, SlotState};
 pub use store::ParticleView;
 
 use soft_stepper::{SOFT_START_OVERLAP, SoftStepper};
-use store::{Kinematics, PairCandidate, SHELL_EXIT, Scheduled, Shell};
+use store::{Kinematics, PairCandidate, SHELL_EXIT, Scheduled, Shell, Spins};
 
 use glam::DVec3;
 use rand::SeedableRng;
@@ -210,7 +210,7 @@ pub struct Engine<Q: EventQueue> {
     image_shift: [DVec3; 27],
 
     kin: Vec<Kinematics>,
-    omega: Vec<DVec3>,
+    spins: Spins,
     inv_mass: Vec<f64>,
     material: Vec<u16>,
     id: Vec<u64>,
@@ -371,7 +371,7 @@ impl<Q: EventQueue> Engine<Q> {
             periodic: periodic.contains(&true),
             image_shift,
             kin: Vec::with_capacity(n),
-            omega: Vec::with_capacity(n),
+            spins: Spins::default(),
             inv_mass: Vec::with_capacity(n),
             material: Vec::with_capacity(n),
             id: Vec::with_capacity(n),
@@ -509,7 +509,7 @@ impl<Q: EventQueue> Engine<Q> {
         if let Some(slot) = self.free_slots.pop() {
             let s = slot as usize;
             self.kin[s] = kin;
-            self.omega[s] = p.omega;
+            self.spins.set(s, p.omega);
             self.inv_mass[s] = inv_mass;
             self.material[s] = p.material;
             self.id[s] = id;
@@ -532,7 +532,7 @@ impl<Q: EventQueue> Engine<Q> {
             return s;
         }
         self.kin.push(kin);
-        self.omega.push(p.omega);
+        self.spins.push(p.omega);
         self.inv_mass.push(inv_mass);
         self.material.push(p.material);
         self.id.push(id);
@@ -629,7 +629,7 @@ impl<Q: EventQueue> Engine<Q> {
             id: self.id[slot],
             pos: self.domain.wrap(k.position_at(self.now)),
             vel: k.vel,
-            omega: self.omega[slot],
+            omega: self.spins.get(slot),
             radius: k.radius,
             mass: 1.0 / self.inv_mass[slot],
             material: self.material[slot],
@@ -651,7 +651,7 @@ impl<Q: EventQueue> Engine<Q> {
                 id: self.id[i],
                 pos: self.kin[i].pos,
                 vel: self.kin[i].vel,
-                omega: self.omega[i],
+                omega: self.spins.get(i),
                 radius: self.kin[i].radius,
                 mass: 1.0 / self.inv_mass[i],
                 material: self.material[i],
@@ -678,7 +678,7 @@ impl<Q: EventQueue> Engine<Q> {
         }
         vec![
             ("kinematics", bytes(&self.kin)),
-            ("spin", bytes(&self.omega)),
+            ("spin", self.spins.heap_bytes()),
             ("inverse_mass", bytes(&self.inv_mass)),
             ("material", bytes(&self.material)),
             ("id", bytes(&self.id)),

@@ -226,7 +226,7 @@ impl<Q: EventQueue> Engine<Q> {
             let mut s = SoftSphere::new(
                 k.position_at(self.now),
                 k.vel,
-                self.omega[i],
+                self.spins.get(i),
                 k.radius,
                 1.0 / self.inv_mass[i],
             );
@@ -246,7 +246,7 @@ impl<Q: EventQueue> Engine<Q> {
                 k.pos = s.pos;
                 k.vel = s.vel;
                 k.time = now;
-                self.omega[i] = s.omega;
+                self.spins.set(i, s.omega);
             }
         }
     }

@@ -16,7 +16,7 @@ use glam::DVec3;
 use rand_xoshiro::Xoshiro256PlusPlus;
 use serde::{Deserialize, Serialize};
 
-use super::store::{Kinematics, PairCandidate, SHELL_EXIT, Shell};
+use super::store::{Kinematics, PairCandidate, SHELL_EXIT, Shell, Spins};
 use super::{CollapseReport, ContactModel, Counters, Engine, SoftStats};
 use crate::neighbours::{CellEntry, NeighbourLists};
 use crate::particles::NewParticle;
@@ -113,7 +113,7 @@ impl<Q: EventQueue> Engine<Q> {
             .map(|i| SlotState {
                 pos: self.kin[i].pos,
                 vel: self.kin[i].vel,
-                omega: self.omega[i],
+                omega: self.spins.get(i),
                 radius: self.kin[i].radius,
                 inv_mass: self.inv_mass[i],
                 material: self.material[i],
@@ -215,7 +215,7 @@ impl<Q: EventQueue> Engine<Q> {
                 radius: s.radius,
             })
             .collect();
-        self.omega = state.slots.iter().map(|s| s.omega).collect();
+        self.spins = Spins::from_values(state.slots.iter().map(|s| s.omega).collect());
         self.inv_mass = state.slots.iter().map(|s| s.inv_mass).collect();
         self.material = state.slots.iter().map(|s| s.material).collect();
         self.id = state.slots.iter().map(|s| s.id).collect();

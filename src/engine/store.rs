@@ -55,6 +55,77 @@ impl Shell {
     }
 }
 
+/// Angular velocities (rad/s), one per slot, stored only once some
+/// particle spins: a run of smooth spheres that start without spin never
+/// allocates them (24 bytes per particle). Reads give zero while nothing
+/// is stored; the first spin that is not +0 in every bit stores all.
+#[derive(Clone, Debug, Default)]
+pub(super) struct Spins {
+    slots: usize,
+    /// Empty while every spin is zero, else one per slot.
+    values: Vec<DVec3>,
+}
+
+impl Spins {
+    /// The spins of `values` (one per slot).
+    pub(super) fn from_values(values: Vec<DVec3>) -> Self {
+        let slots = values.len();
+        let values = if values.iter().all(|&w| is_plus_zero(w)) {
+            Vec::new()
+        } else {
+            values
+        };
+        Spins { slots, values }
+    }
+
+    #[inline]
+    pub(super) fn get(&self, i: usize) -> DVec3 {
+        if self.values.is_empty() {
+            DVec3::ZERO
+        } else {
+            self.values[i]
+        }
+    }
+
+    #[inline]
+    pub(super) fn set(&mut self, i: usize, omega: DVec3) {
+        if self.values.is_empty() {
+            if is_plus_zero(omega) {
+                return;
+            }
+            self.values = vec![DVec3::ZERO; self.slots];
+        }
+        self.values[i] = omega;
+    }
+
+    /// Adds a slot with spin `omega`.
+    pub(super) fn push(&mut self, omega: DVec3) {
+        self.slots += 1;
+        if !self.values.is_empty() {
+            self.values.push(omega);
+        } else if !is_plus_zero(omega) {
+            self.values = vec![DVec3::ZERO; self.slots];
+            self.values[self.slots - 1] = omega;
+        }
+    }
+
+    /// The stored values (`None` while all are zero), to renumber them.
+    pub(super) fn stored_mut(&mut self) -> Option<&mut Vec<DVec3>> {
+        (!self.values.is_empty()).then_some(&mut self.values)
+    }
+
+    pub(super) fn heap_bytes(&self) -> usize {
+        self.values.capacity() * std::mem::size_of::<DVec3>()
+    }
+}
+
+/// Whether every component of `w` is +0.0 (not −0.0), so that storing
+/// nothing reads back the same bits.
+#[inline]
+fn is_plus_zero(w: DVec3) -> bool {
+    w.to_array().iter().all(|c| c.to_bits() == 0)
+}
+
 /// Position, velocity, radius and the time they refer to: one cache line.
 #[derive(Clone, Copy, Debug, Default)]
 #[repr(C, align(64))]
@@ -139,7 +210,9 @@ impl<Q: EventQueue> Engine<Q> {
             }
         }
         permute(&mut self.kin, &order);
-        permute(&mut self.omega, &order);
+        if let Some(spins) = self.spins.stored_mut() {
+            permute(spins, &order);
+        }
         permute(&mut self.inv_mass, &order);
         permute(&mut self.material, &order);
         permute(&mut self.id, &order);
@@ -215,7 +288,7 @@ impl<Q: EventQueue> Engine<Q> {
         State {
             pos: self.kin[i].pos,
             vel: self.kin[i].vel,
-            omega: self.omega[i],
+            omega: self.spins.get(i),
         }
     }
 
@@ -223,7 +296,7 @@ impl<Q: EventQueue> Engine<Q> {
     pub(super) fn body(&self, i: usize) -> Body {
         Body {
             vel: self.kin[i].vel,
-            omega: self.omega[i],
+            omega: self.spins.get(i),
             radius: self.kin[i].radius,
             inv_mass: self.inv_mass[i],
         }
@@ -238,7 +311,7 @@ impl<Q: EventQueue> Engine<Q> {
                 let m = 1.0 / self.inv_mass[i];
                 trans += 0.5 * m * self.kin[i].vel.length_squared();
                 let r = self.kin[i].radius;
-                rot += 0.5 * 0.4 * m * r * r * self.omega[i].length_squared();
+                rot += 0.5 * 0.4 * m * r * r * self.spins.get(i).length_squared();
             }
         }
         (trans, rot)
@@ -303,4 +376,34 @@ impl PairCandidate {
         entry: 0,
         partner_count: 0,
     };
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn spins_are_stored_once_one_is_not_plus_zero() {
+        let mut spins = Spins::default();
+        spins.push(DVec3::ZERO);
+        spins.push(DVec3::ZERO);
+        spins.set(1, DVec3::ZERO);
+        assert_eq!(spins.heap_bytes(), 0);
+        // −0 is stored, so that it reads back bit for bit.
+        spins.set(1, DVec3::new(-0.0, 0.0, 0.0));
+        assert_eq!(spins.heap_bytes(), 2 * 24);
+        assert!(spins.get(1).x.is_sign_negative());
+        assert_eq!(spins.get(0), DVec3::ZERO);
+        spins.push(DVec3::X);
+        assert_eq!(
+            (spins.get(2), spins.heap_bytes() >= 3 * 24),
+            (DVec3::X, true)
+        );
+
+        let mut lazy = Spins::from_values(vec![DVec3::ZERO; 3]);
+        assert_eq!((lazy.heap_bytes(), lazy.get(2)), (0, DVec3::ZERO));
+        lazy.push(DVec3::Y);
+        assert_eq!((lazy.get(3), lazy.get(0)), (DVec3::Y, DVec3::ZERO));
+        assert_eq!(Spins::from_values(vec![DVec3::Z]).get(0), DVec3::Z);
+    }
 }
