@@ -669,7 +669,7 @@ mod tests {
     /// lists (at least 4 entries of 4 bytes).
     #[test]
     fn memory_breakdown_adds_up_to_the_total() {
-        for (phi, search) in [(0.3, NeighbourSearch::Lists), (0.1, NeighbourSearch::Cells)] {
+        for (phi, search) in [(0.4, NeighbourSearch::Lists), (0.1, NeighbourSearch::Cells)] {
             let r = run(&BenchOptions {
                 n: 500,
                 phi,

@@ -228,7 +228,7 @@ enum Command {
         #[arg(long, value_enum, default_value = "calendar")]
         queue: QueueArg,
         /// Neighbour search: per-particle lists, cells, or `auto`, the rule
-        /// of `edpm run` (cells below a packing fraction of 0.2).
+        /// of `edpm run` (cells below a packing fraction of 0.325).
         #[arg(long, value_enum, default_value = "auto")]
         neighbours: NeighbourArg,
         /// Initial state: an FCC lattice, a fluid melted at phi = 0.45 and

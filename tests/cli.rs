@@ -484,9 +484,9 @@ fn bench_prints_one_json_line_and_rejects_a_solid_packing() {
     assert!((p - cs).abs() < 0.15 * cs, "pressure {p} vs CS {cs}");
     let bytes = v["bytes_per_particle"].as_u64().unwrap();
     assert!((64..10_000).contains(&bytes), "{v}");
-    // The search is chosen as `edpm run`'s `auto` does: lists from a
-    // solids fraction of 0.2 on, cells below.
-    assert_eq!(v["neighbours"], "lists", "{v}");
+    // The search is chosen as `edpm run`'s `auto` does: cells below a
+    // solids fraction of 0.325, lists from there on.
+    assert_eq!(v["neighbours"], "cells", "{v}");
     // The OS's peak RSS holds at least the engine's own estimate.
     let rss = v["peak_rss_bytes"].as_u64().expect("peak RSS reported");
     assert!(rss > 500 * bytes, "{v}");

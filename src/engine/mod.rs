@@ -136,17 +136,24 @@ pub enum NeighbourSearch {
 
 /// The `auto` neighbour search, shared by `edpm run`, `edpm bench` and the
 /// resolved scenario:
-/// cells when the solids fraction is below 0.2 without gravity, or below
-/// 0.02 with gravity (which gathers dilute particles into dense beds, where
-/// lists are 2x faster: measured on scenarios/box-walls.toml), and every
-/// periodic axis spans at least three cells of one largest diameter
-/// (`cells_fit`); lists otherwise. See results/benchmarks.md.
+/// cells when the solids fraction is below [`CELLS_BELOW_FRACTION`] without
+/// gravity, or below 0.02 with gravity (which gathers dilute particles into
+/// dense beds, where lists are 2x faster: measured on
+/// scenarios/box-walls.toml), and every periodic axis spans at least three
+/// cells of one largest diameter (`cells_fit`); lists otherwise. See
+/// results/benchmarks.md.
+/// Solids fraction below which `auto` chooses cells without gravity:
+/// between the measured crossover of `edpm bench` (cells 1.03-1.19x as
+/// fast as lists at 0.3, lists 1.07-1.25x as fast at 0.35, N = 10976 and
+/// 108000; results/benchmarks.md, third session).
+pub const CELLS_BELOW_FRACTION: f64 = 0.325;
+
 pub fn auto_neighbour_search(
     solids_fraction: f64,
     gravity: bool,
     cells_fit: bool,
 ) -> NeighbourSearch {
-    let threshold = if gravity { 0.02 } else { 0.2 };
+    let threshold = if gravity { 0.02 } else { CELLS_BELOW_FRACTION };
     if solids_fraction < threshold && cells_fit {
         NeighbourSearch::Cells
     } else {

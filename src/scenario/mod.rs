@@ -340,8 +340,9 @@ pub struct TimeSettings {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum NeighbourChoice {
-    /// Cells when the initial solids fraction is below 0.2 (0.02 with
-    /// gravity) and every periodic axis holds at least 3 cells, else lists.
+    /// Cells when the initial solids fraction is below 0.325 (0.02 with
+    /// gravity) and every periodic axis holds at least 3 cells, else lists
+    /// ([`crate::engine::auto_neighbour_search`]).
     Auto,
     Lists,
     Cells,
