@@ -190,6 +190,18 @@ fn fcc_count(n: usize) -> usize {
 /// at packing fraction `phi` with Maxwellian velocities at temperature 1
 /// and zero total momentum.
 pub fn fcc_system(n: usize, phi: f64, seed: u64) -> (Domain, Vec<NewParticle>) {
+    let (domain, lattice) = fcc_lattice(n, phi, seed);
+    (domain, lattice.collect())
+}
+
+/// The particles of [`fcc_system`], made one by one as they are taken:
+/// only their velocities (24 bytes each) are held beforehand, so that an
+/// engine built from them never holds a second full copy of the start.
+pub fn fcc_lattice(
+    n: usize,
+    phi: f64,
+    seed: u64,
+) -> (Domain, impl ExactSizeIterator<Item = NewParticle>) {
     let count = fcc_count(n);
     let k = ((count / 4) as f64).cbrt().round() as usize;
     let side = box_side(count, phi);
@@ -200,21 +212,21 @@ pub fn fcc_system(n: usize, phi: f64, seed: u64) -> (Domain, Vec<NewParticle>) {
         DVec3::new(0.5, 0.0, 0.5),
         DVec3::new(0.0, 0.5, 0.5),
     ];
-    let mut positions = Vec::with_capacity(count);
-    for z in 0..k {
-        for y in 0..k {
-            for x in 0..k {
-                for b in basis {
-                    positions.push((DVec3::new(x as f64, y as f64, z as f64) + b + 0.25) * a);
-                }
-            }
-        }
-    }
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
-    (
-        periodic_cube(side),
-        with_maxwellian_velocities(positions, &mut rng),
-    )
+    let velocities = maxwellian_velocities(count, &mut rng);
+    // Site `index` = ((z k + y) k + x) 4 + basis vector.
+    let lattice = (0..count).map(move |index| {
+        let (cell, b) = (index / 4, index % 4);
+        let (x, y, z) = (cell % k, (cell / k) % k, cell / (k * k));
+        NewParticle {
+            pos: (DVec3::new(x as f64, y as f64, z as f64) + basis[b] + 0.25) * a,
+            vel: velocities[index],
+            omega: DVec3::ZERO,
+            radius: 0.5,
+            material: 0,
+        }
+    });
+    (periodic_cube(side), lattice)
 }
 
 /// Pushes every overlapping pair of unit spheres in the periodic cube
@@ -321,37 +333,28 @@ fn periodic_cube(side: f64) -> Domain {
     }
 }
 
-/// Unit spheres at `positions` with Gaussian velocities shifted to zero
-/// total momentum and scaled to temperature exactly 1 (k_B T = m = 1).
-fn with_maxwellian_velocities(
-    positions: Vec<DVec3>,
-    rng: &mut Xoshiro256PlusPlus,
-) -> Vec<NewParticle> {
-    let count = positions.len();
-    let mut particles: Vec<NewParticle> = positions
-        .into_iter()
-        .map(|pos| NewParticle {
-            pos,
-            vel: DVec3::new(
+/// `count` Gaussian velocities shifted to zero total momentum and scaled
+/// to temperature exactly 1 (k_B T = m = 1).
+fn maxwellian_velocities(count: usize, rng: &mut Xoshiro256PlusPlus) -> Vec<DVec3> {
+    let mut velocities: Vec<DVec3> = (0..count)
+        .map(|_| {
+            DVec3::new(
                 standard_normal(rng),
                 standard_normal(rng),
                 standard_normal(rng),
-            ),
-            omega: DVec3::ZERO,
-            radius: 0.5,
-            material: 0,
+            )
         })
         .collect();
-    let mean = particles.iter().map(|p| p.vel).sum::<DVec3>() / count as f64;
-    let t = particles
+    let mean = velocities.iter().sum::<DVec3>() / count as f64;
+    let t = velocities
         .iter()
-        .map(|p| (p.vel - mean).length_squared())
+        .map(|v| (*v - mean).length_squared())
         .sum::<f64>()
         / (3.0 * count as f64);
-    for p in &mut particles {
-        p.vel = (p.vel - mean) / t.sqrt();
+    for v in &mut velocities {
+        *v = (*v - mean) / t.sqrt();
     }
-    particles
+    velocities
 }
 
 /// Calls `f(i, j, r)` once for every pair `i < j` of points in the
@@ -547,11 +550,6 @@ fn run_with<Q: EventQueue>(opts: &BenchOptions) -> BenchResult {
         Start::Auto => Start::Compressed,
         chosen => chosen,
     };
-    let (domain, particles) = match initial {
-        Start::Compressed => compressed_system(opts.n, opts.phi, opts.seed),
-        _ => fcc_system(opts.n, opts.phi, opts.seed),
-    };
-    let n = particles.len();
     // Cells must fit three times along each periodic side (width: one
     // diameter), as `edpm run` requires.
     let neighbours = opts
@@ -563,9 +561,20 @@ fn run_with<Q: EventQueue>(opts: &BenchOptions) -> BenchResult {
         neighbours,
         ..Default::default()
     };
-    let mut engine: Engine<Q> =
-        Engine::new(domain, unit_spheres(), config, &particles).expect("start is overlap-free");
-    drop(particles);
+    // The lattice is made as the engine takes it in (the peak memory
+    // never holds the start twice).
+    let mut engine: Engine<Q> = match initial {
+        Start::Compressed => {
+            let (domain, fluid) = compressed_system(opts.n, opts.phi, opts.seed);
+            Engine::new(domain, unit_spheres(), config, &fluid)
+        }
+        _ => {
+            let (domain, lattice) = fcc_lattice(opts.n, opts.phi, opts.seed);
+            Engine::with_capacity_for_radius(domain, unit_spheres(), config, 0.5, lattice)
+        }
+    }
+    .expect("start is overlap-free");
+    let n = engine.len();
     let rho = 6.0 * opts.phi / std::f64::consts::PI;
     let mean_free_time = mean_free_time(opts.phi);
     let interval = opts
@@ -686,9 +695,11 @@ mod tests {
             assert_eq!(r.memory_bytes_per_particle["spin"], 0.0);
             let lists = r.memory_bytes_per_particle["neighbour_lists"];
             let cell_of = r.memory_bytes_per_particle["cell_of"];
+            let shell = r.memory_bytes_per_particle["shell"];
             match search {
                 NeighbourSearch::Lists => assert!(lists >= 16.0 && cell_of == 0.0, "{r:?}"),
-                NeighbourSearch::Cells => assert!(cell_of == 12.0, "{r:?}"),
+                // Cells mode keeps no neighbour shells.
+                NeighbourSearch::Cells => assert!(cell_of == 12.0 && shell == 0.0, "{r:?}"),
             }
         }
     }

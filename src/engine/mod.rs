@@ -294,17 +294,19 @@ impl<Q: EventQueue> Engine<Q> {
         if r_max == 0.0 {
             r_max = config.skin;
         }
-        Self::with_capacity_for_radius(domain, materials, config, r_max, particles)
+        Self::with_capacity_for_radius(domain, materials, config, r_max, particles.iter().copied())
     }
 
     /// As [`Engine::new`], with the neighbour grid sized for particles up to
     /// radius `r_max` (needed when an inlet will add larger particles later).
+    /// The particles may be made as they are taken in, so that a large start
+    /// never holds them twice (`edpm bench` builds its lattice this way).
     pub fn with_capacity_for_radius(
         domain: Domain,
         materials: MaterialTable,
         mut config: EngineConfig,
         r_max: f64,
-        particles: &[NewParticle],
+        particles: impl ExactSizeIterator<Item = NewParticle>,
     ) -> Result<Self, EngineError> {
         if let Some(inlet) = config.inlet
             && (inlet.height.is_nan() || inlet.height <= 0.0)
@@ -385,7 +387,8 @@ impl<Q: EventQueue> Engine<Q> {
             active: Vec::with_capacity(n),
             counter: Vec::with_capacity(n),
             scheduled: Vec::with_capacity(n),
-            shells: Vec::with_capacity(n),
+            // Cells mode keeps no shells.
+            shells: Vec::with_capacity(if cells_mode { 0 } else { n }),
             face_mask: Vec::with_capacity(n),
             cell_of: Vec::with_capacity(if cells_mode { n } else { 0 }),
             pair_candidate: Vec::with_capacity(if cells_mode { n } else { 0 }),
@@ -426,9 +429,9 @@ impl<Q: EventQueue> Engine<Q> {
                 ));
             }
         }
-        for (index, p) in particles.iter().enumerate() {
-            engine.check_particle(index, p)?;
-            let slot = engine.allocate_slot(p);
+        for (index, p) in particles.enumerate() {
+            engine.check_particle(index, &p)?;
+            let slot = engine.allocate_slot(&p);
             engine.enter_grid(slot);
         }
         engine.check_start_overlaps(start_overlap)?;
@@ -523,14 +526,15 @@ impl<Q: EventQueue> Engine<Q> {
             self.active[s] = true;
             self.counter[s] = self.counter[s].wrapping_add(1);
             self.scheduled[s] = SHELL_EXIT;
-            self.shells[s] = Shell {
-                centre: p.pos,
-                reach: p.radius + self.config.skin,
-            };
             self.face_mask[s] = 0;
             if self.uses_cells() {
                 self.cell_of[s] = [0; 3];
                 self.pair_candidate[s] = PairCandidate::NONE;
+            } else {
+                self.shells[s] = Shell {
+                    centre: p.pos,
+                    reach: p.radius + self.config.skin,
+                };
             }
             self.last_collision[s] = f64::NEG_INFINITY;
             self.last_partner[s] = NO_PARTNER;
@@ -546,14 +550,15 @@ impl<Q: EventQueue> Engine<Q> {
         self.active.push(true);
         self.counter.push(0);
         self.scheduled.push(SHELL_EXIT);
-        self.shells.push(Shell {
-            centre: p.pos,
-            reach: p.radius + self.config.skin,
-        });
         self.face_mask.push(0);
         if self.uses_cells() {
             self.cell_of.push([0; 3]);
             self.pair_candidate.push(PairCandidate::NONE);
+        } else {
+            self.shells.push(Shell {
+                centre: p.pos,
+                reach: p.radius + self.config.skin,
+            });
         }
         self.last_collision.push(f64::NEG_INFINITY);
         self.last_partner.push(NO_PARTNER);

@@ -120,8 +120,13 @@ impl<Q: EventQueue> Engine<Q> {
                 id: self.id[i],
                 active: self.active[i],
                 counter: self.counter[i],
-                shell_centre: self.shells[i].centre,
-                shell_reach: self.shells[i].reach,
+                // Cells mode keeps no shells: its slots record a shell
+                // at the position, which nothing reads back.
+                shell_centre: self.shells.get(i).map_or(self.kin[i].pos, |s| s.centre),
+                shell_reach: self
+                    .shells
+                    .get(i)
+                    .map_or(self.kin[i].radius + self.config.skin, |s| s.reach),
                 face_mask: self.face_mask[i],
                 cell: self.cell_of.get(i).map_or([0; 3], |c| c.map(u64::from)),
                 last_collision: self.last_collision[i],
@@ -222,14 +227,18 @@ impl<Q: EventQueue> Engine<Q> {
         self.active = state.slots.iter().map(|s| s.active).collect();
         self.counter = state.slots.iter().map(|s| s.counter).collect();
         self.scheduled = vec![SHELL_EXIT; n];
-        self.shells = state
-            .slots
-            .iter()
-            .map(|s| Shell {
-                centre: s.shell_centre,
-                reach: s.shell_reach,
-            })
-            .collect();
+        self.shells = if self.uses_cells() {
+            Vec::new()
+        } else {
+            state
+                .slots
+                .iter()
+                .map(|s| Shell {
+                    centre: s.shell_centre,
+                    reach: s.shell_reach,
+                })
+                .collect()
+        };
         self.face_mask = state.slots.iter().map(|s| s.face_mask).collect();
         if self.uses_cells() {
             self.cell_of = state

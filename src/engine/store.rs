@@ -217,7 +217,9 @@ impl<Q: EventQueue> Engine<Q> {
         permute(&mut self.material, &order);
         permute(&mut self.id, &order);
         permute(&mut self.active, &order);
-        permute(&mut self.shells, &order);
+        if !self.uses_cells() {
+            permute(&mut self.shells, &order);
+        }
         permute(&mut self.last_collision, &order);
         permute(&mut self.last_partner, &order);
         permute(&mut self.step_collisions, &order);
@@ -247,7 +249,9 @@ impl<Q: EventQueue> Engine<Q> {
         }
         self.cells.empty(n);
         for i in 0..n {
-            self.shells[i].centre = self.kin[i].pos;
+            if !self.uses_cells() {
+                self.shells[i].centre = self.kin[i].pos;
+            }
             self.enter_grid(i);
         }
     }

@@ -96,7 +96,7 @@ pub fn build_engine<Q: EventQueue>(s: &Scenario) -> anyhow::Result<Engine<Q>> {
         material_table(s),
         config,
         r_max,
-        &particles,
+        particles.iter().copied(),
     )
     .with_context(|| format!("{}: building the initial state", s.name))
 }
