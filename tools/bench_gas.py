@@ -3,9 +3,10 @@
 
 Runs scenarios/bubbling-bed-jet.toml (or another scenario) at several flow
 steps, each REPEATS times, and prints a markdown table: median wall and CPU
-seconds per simulated second, the time-averaged pressure drop and bed
-centre-of-mass height after the start-up (with their change against the
-smallest flow step), the largest Courant number and the collisions.
+seconds per simulated second, the time-averaged pressure drop, bed height
+(twice the solids centroid) and number of particles held (a riser's
+hold-up) after the start-up (with their change against the smallest flow
+step), the largest Courant number and the collisions.
 
 Repeats of one seed are bit-identical, so they measure timing noise only.
 `--seeds 7,11,13,17` runs each flow step once per seed instead (the
@@ -80,20 +81,22 @@ def main():
                                      Path(tmp) / f"dt{dt}-{r}", seed)
                 for dt in dts for r, seed in enumerate(seeds)}
         for dt in dts:
-            walls, cpus, drops, heights, courant, coll = [], [], [], [], [], []
+            walls, cpus, drops, heights, courant, coll, held = [], [], [], [], [], [], []
             for r in range(len(seeds)):
                 s, gas, series = jobs[(dt, r)].result()
                 walls.append(s["wall_seconds"] / s["t_end"])
                 cpus.append(s["cpu_seconds"] / s["t_end"])
                 drops.append(late_mean(gas, "pressure_drop_mean_Pa", a.skip))
                 heights.append(2.0 * late_mean(series, "centre_of_mass_y_m", a.skip))
+                held.append(late_mean(series, "particles", a.skip))
                 courant.append(s["gas"]["max_courant"])
                 coll.append(s["counters"]["pair_collisions"] + s["counters"]["wall_collisions"])
                 print(f"dt={dt} run {r}: {walls[-1]:.2f} s/s wall, dp {drops[-1]:.1f} Pa, "
                       f"height {heights[-1]:.4f} m", file=sys.stderr)
             rows.append((float(dt), statistics.median(walls), statistics.median(cpus),
                          mean_and_error(drops), mean_and_error(heights),
-                         max(courant), statistics.median(coll) / a.t_end))
+                         max(courant), statistics.median(coll) / a.t_end,
+                         mean_and_error(held)))
     ref = rows[0]
     runs = f"seeds {a.seeds}, one run each" if a.seeds else f"{a.repeats} runs per flow step"
     print(f"Scenario `{a.scenario}`, {a.t_end} s simulated, averages over "
@@ -101,16 +104,18 @@ def main():
           "± standard error over the runs), bed height = 2 × solids centroid.\n")
     print("| flow step (s) | wall s per simulated s | CPU s per simulated s | "
           "mean Δp (Pa) | Δp vs finest | bed height (m) | height vs finest | "
-          "max Courant | collisions per simulated s |")
-    print("|---|---|---|---|---|---|---|---|---|")
-    for dt, wall, cpu, (dp, dp_err), (h, h_err), cour, coll in rows:
+          "max Courant | collisions per simulated s | particles held | held vs finest |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    for dt, wall, cpu, (dp, dp_err), (h, h_err), cour, coll, (n, n_err) in rows:
         dp_diff = (dp - ref[3][0]) / ref[3][0]
         dp_diff_err = math.hypot(dp_err, ref[3][1]) / ref[3][0]
         h_diff = (h - ref[4][0]) / ref[4][0]
         h_diff_err = math.hypot(h_err, ref[4][1]) / ref[4][0]
         print(f"| {dt:g} | {wall:.2f} | {cpu:.2f} | {dp:.0f} ± {dp_err:.0f} | "
               f"{dp_diff:+.1%} ± {dp_diff_err:.1%} | {h:.4f} ± {h_err:.4f} | "
-              f"{h_diff:+.1%} ± {h_diff_err:.1%} | {cour:.2f} | {coll:.3g} |")
+              f"{h_diff:+.1%} ± {h_diff_err:.1%} | {cour:.2f} | {coll:.3g} | "
+              f"{n:.0f} ± {n_err:.0f} | {(n - ref[7][0]) / ref[7][0]:+.1%} ± "
+              f"{math.hypot(n_err, ref[7][1]) / ref[7][0]:.1%} |")
 
 
 if __name__ == "__main__":
