@@ -134,6 +134,12 @@ pub enum NeighbourSearch {
     Cells,
 }
 
+/// Solids fraction below which `auto` chooses cells without gravity:
+/// within the measured crossover of `edpm bench` (cells 1.03-1.19x as
+/// fast as lists at 0.3, lists 1.11-1.30x as fast at 0.35 and 0.4, N =
+/// 10976 and 108000; results/benchmarks.md, third session).
+pub const CELLS_BELOW_FRACTION: f64 = 0.325;
+
 /// The `auto` neighbour search, shared by `edpm run`, `edpm bench` and the
 /// resolved scenario:
 /// cells when the solids fraction is below [`CELLS_BELOW_FRACTION`] without
@@ -142,12 +148,6 @@ pub enum NeighbourSearch {
 /// scenarios/box-walls.toml), and every periodic axis spans at least three
 /// cells of one largest diameter (`cells_fit`); lists otherwise. See
 /// results/benchmarks.md.
-/// Solids fraction below which `auto` chooses cells without gravity:
-/// between the measured crossover of `edpm bench` (cells 1.03-1.19x as
-/// fast as lists at 0.3, lists 1.07-1.25x as fast at 0.35, N = 10976 and
-/// 108000; results/benchmarks.md, third session).
-pub const CELLS_BELOW_FRACTION: f64 = 0.325;
-
 pub fn auto_neighbour_search(
     solids_fraction: f64,
     gravity: bool,
