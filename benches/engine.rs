@@ -5,7 +5,7 @@
 //!   crossing scans (`CellGrid::for_each_in_new_layer`);
 //! - `collisions`: the event loop of `edpm bench` (elastic spheres,
 //!   periodic cube, N = 4000), time per 1000 pair collisions, with cells
-//!   at φ = 0.1 and lists at φ = 0.3 and 0.45 (the `auto` choices);
+//!   at φ = 0.1 and 0.3 and lists at φ = 0.45 (the `auto` choices);
 //! - `list_rebuild`: renumbering in cell order and rebuilding every
 //!   neighbour list from the slot-only cell grid (`Engine::reorder_by_cell`,
 //!   N = 4000, φ = 0.3 and 0.45), per particle.
@@ -57,28 +57,35 @@ fn cell_scan(c: &mut Criterion) {
 /// Collisions processed per benchmark element.
 const COLLISIONS: u64 = 1000;
 
+/// `edpm bench`'s system at `phi` (4000 elastic unit spheres from the FCC
+/// lattice) with the search `neighbours`, melted by 5 collisions per
+/// particle.
+fn melted_engine(phi: f64, neighbours: NeighbourSearch) -> Engine<CalendarQueue> {
+    let (domain, particles) = fcc_system(4000, phi, 1);
+    let config = EngineConfig {
+        skin: 0.3,
+        seed: 1,
+        neighbours,
+        ..Default::default()
+    };
+    let materials =
+        MaterialTable::single(6.0 / std::f64::consts::PI, ContactParams::ELASTIC_SMOOTH);
+    let mut engine: Engine<CalendarQueue> =
+        Engine::new(domain, materials, config, &particles).expect("FCC start");
+    while engine.counters.pair_collisions < 5 * particles.len() as u64 {
+        engine.advance(0.1);
+    }
+    engine
+}
+
 fn collisions(c: &mut Criterion) {
     let mut group = c.benchmark_group("collisions");
     group.throughput(Throughput::Elements(COLLISIONS));
     group.measurement_time(Duration::from_secs(5));
     for phi in [0.1, 0.3, 0.45] {
-        let (domain, particles) = fcc_system(4000, phi, 1);
-        let side = domain.size().x;
-        let neighbours = auto_neighbour_search(phi, false, side >= 3.0);
-        let config = EngineConfig {
-            skin: 0.3,
-            seed: 1,
-            neighbours,
-            ..Default::default()
-        };
-        let materials =
-            MaterialTable::single(6.0 / std::f64::consts::PI, ContactParams::ELASTIC_SMOOTH);
-        let mut engine: Engine<CalendarQueue> =
-            Engine::new(domain, materials, config, &particles).expect("FCC start");
-        // Melt the lattice first: 5 collisions per particle.
-        while engine.counters.pair_collisions < 5 * particles.len() as u64 {
-            engine.advance(0.1);
-        }
+        // 4000 spheres span at least 15 diameters a side: cells fit.
+        let neighbours = auto_neighbour_search(phi, false, true);
+        let mut engine = melted_engine(phi, neighbours);
         let label = match neighbours {
             NeighbourSearch::Lists => "lists",
             NeighbourSearch::Cells => "cells",
@@ -101,22 +108,9 @@ fn collisions(c: &mut Criterion) {
 fn list_rebuild(c: &mut Criterion) {
     let mut group = c.benchmark_group("list_rebuild");
     for phi in [0.3, 0.45] {
-        let (domain, particles) = fcc_system(4000, phi, 1);
-        group.throughput(Throughput::Elements(particles.len() as u64));
-        let config = EngineConfig {
-            skin: 0.3,
-            seed: 1,
-            neighbours: NeighbourSearch::Lists,
-            ..Default::default()
-        };
-        let materials =
-            MaterialTable::single(6.0 / std::f64::consts::PI, ContactParams::ELASTIC_SMOOTH);
-        let mut engine: Engine<CalendarQueue> =
-            Engine::new(domain, materials, config, &particles).expect("FCC start");
         // A melted fluid, so that the lists have their fluid lengths.
-        while engine.counters.pair_collisions < 5 * particles.len() as u64 {
-            engine.advance(0.1);
-        }
+        let mut engine = melted_engine(phi, NeighbourSearch::Lists);
+        group.throughput(Throughput::Elements(engine.len() as u64));
         engine.end_flow_step();
         group.bench_function(BenchmarkId::from_parameter(phi), |b| {
             b.iter(|| engine.reorder_by_cell())

@@ -102,11 +102,9 @@ impl Spins {
     pub(super) fn push(&mut self, omega: DVec3) {
         self.slots += 1;
         if !self.values.is_empty() {
-            self.values.push(omega);
-        } else if !is_plus_zero(omega) {
-            self.values = vec![DVec3::ZERO; self.slots];
-            self.values[self.slots - 1] = omega;
+            self.values.push(DVec3::ZERO);
         }
+        self.set(self.slots - 1, omega);
     }
 
     /// The stored values (`None` while all are zero), to renumber them.
@@ -217,9 +215,6 @@ impl<Q: EventQueue> Engine<Q> {
         permute(&mut self.material, &order);
         permute(&mut self.id, &order);
         permute(&mut self.active, &order);
-        if !self.uses_cells() {
-            permute(&mut self.shells, &order);
-        }
         permute(&mut self.last_collision, &order);
         permute(&mut self.last_partner, &order);
         permute(&mut self.step_collisions, &order);
@@ -247,11 +242,19 @@ impl<Q: EventQueue> Engine<Q> {
             self.lists = NeighbourLists::default();
             self.lists = NeighbourLists::new(n, stride);
         }
+        // Lists mode: each shell starts afresh at the particle (its reach
+        // is the radius plus the skin, as at insertion); in place, so that
+        // the peak memory holds one array.
+        if !self.uses_cells() {
+            let skin = self.config.skin;
+            self.shells.clear();
+            self.shells.extend(self.kin.iter().map(|k| Shell {
+                centre: k.pos,
+                reach: k.radius + skin,
+            }));
+        }
         self.cells.empty(n);
         for i in 0..n {
-            if !self.uses_cells() {
-                self.shells[i].centre = self.kin[i].pos;
-            }
             self.enter_grid(i);
         }
     }

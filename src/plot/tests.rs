@@ -35,16 +35,7 @@ fn legend_never_covers_data_when_lines_fill_every_corner() {
             guide: false,
         })
         .collect();
-    let fig = XyFigure {
-        size: (1200, 800),
-        title: "t",
-        x_label: "x",
-        y_label: "y",
-        log_x: false,
-        log_y: false,
-        square: false,
-        x_pad: 0.02,
-    };
+    let fig = landscape_figure(false);
     let layout = xy_layout(&fig, &layers).unwrap();
     let (w, h) = layout.size;
     let plot_w = (w - XY_MARGIN - layout.left - layout.right) as f64;
@@ -86,16 +77,7 @@ fn a_one_point_line_series_keeps_its_marker() {
         guide: false,
     };
     let layers = vec![layer(vec![(2.0, 0.5)]), layer(vec![(1.0, 0.1), (3.0, 0.9)])];
-    let fig = XyFigure {
-        size: (1200, 800),
-        title: "t",
-        x_label: "x",
-        y_label: "y",
-        log_x: true,
-        log_y: true,
-        square: false,
-        x_pad: 0.02,
-    };
+    let fig = landscape_figure(true);
     let layout = xy_layout(&fig, &layers).unwrap();
     let geom = layer_geometry(&fig, &layers, &layout.x_axis, &layout.y_axis);
     assert_eq!(geom[0], vec![vec![(2.0_f64.log10(), 0.5_f64.log10())]]);
@@ -491,4 +473,18 @@ fn parity_plot_linear_and_log() {
     }
     parity_plot(&dir.join("empty.png"), "t", "x", "y", &[], false).unwrap();
     decode(&dir.join("empty.png"));
+}
+
+/// A 1200 × 800 chart with both axes linear or both logarithmic.
+fn landscape_figure(log: bool) -> XyFigure<'static> {
+    XyFigure {
+        size: (1200, 800),
+        title: "t",
+        x_label: "x",
+        y_label: "y",
+        log_x: log,
+        log_y: log,
+        square: false,
+        x_pad: 0.02,
+    }
 }
