@@ -401,10 +401,42 @@ fn validate_command(a: ValidateArgs) -> anyhow::Result<()> {
     })
 }
 
-/// Turns each subcommand's arguments into the library's options and runs it.
+/// Stack of each worker thread, bytes: the main thread's usual 8 MiB, since
+/// the whole command runs on a worker.
+const WORKER_STACK_BYTES: usize = 8 << 20;
+
+/// Runs `work` on a worker of a rayon pool (`RAYON_NUM_THREADS` threads), so
+/// that the parallel loops of every flow step start on a thread that is
+/// already awake. Called from the main thread, each loop would hand its work
+/// to the pool and sleep until it is done: on one thread that round trip
+/// through the kernel took about a tenth of the jet bed's time
+/// (results/benchmarks.md, "fourth session").
+fn on_worker_thread<T: Send>(work: impl FnOnce() -> T + Send) -> T {
+    match rayon::ThreadPoolBuilder::new()
+        .stack_size(WORKER_STACK_BYTES)
+        .build()
+    {
+        Ok(pool) => pool.install(work),
+        Err(_) => work(),
+    }
+}
+
+/// Parses the command line and runs the subcommand on a worker thread.
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    let result = match cli.command {
+    let result = on_worker_thread(|| dispatch(cli.command));
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("edpm: error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// Turns each subcommand's arguments into the library's options and runs it.
+fn dispatch(command: Command) -> anyhow::Result<()> {
+    match command {
         Command::Run {
             scenario,
             out,
@@ -521,12 +553,5 @@ fn main() -> ExitCode {
             reorder_every,
             seed,
         }),
-    };
-    match result {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("edpm: error: {e:#}");
-            ExitCode::FAILURE
-        }
     }
 }
