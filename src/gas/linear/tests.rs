@@ -470,3 +470,36 @@ fn solver_reuse_across_grids() {
         }
     }
 }
+
+/// The direct solver keeps its factor for a repeated matrix (the gas
+/// solver's chord iterations) and must drop it as soon as one entry
+/// changes: every solve of a kept solver equals, to the bit, that of a
+/// fresh solver on the same matrix and right-hand side.
+#[test]
+fn kept_factor_follows_the_matrix() {
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(21);
+    let (n, periodic) = ([6, 5, 1], [false, true, false]);
+    let mut a = random_matrix(n, periodic, &mut rng, |r| r.random_range(0.05..1.0));
+    let mut kept = BandedCholesky::new();
+    for round in 0..6 {
+        match round {
+            // Rounds 1 and 4 repeat the matrix; the others change a diagonal
+            // entry, an off-diagonal one or (round 5) the last cell only.
+            2 => a.diag[3] *= 1.5,
+            3 => a.off[0][7] *= 0.5,
+            5 => {
+                let last = a.len() - 1;
+                a.diag[last] += 1e-9;
+            }
+            _ => {}
+        }
+        let b: Vec<f64> = (0..a.len()).map(|_| rng.random_range(-1.0..1.0)).collect();
+        let mut x_kept = vec![0.0; a.len()];
+        let mut x_fresh = vec![0.0; a.len()];
+        kept.solve(&a, &b, &mut x_kept, 1e-12).unwrap();
+        BandedCholesky::new()
+            .solve(&a, &b, &mut x_fresh, 1e-12)
+            .unwrap();
+        assert_eq!(x_kept, x_fresh, "round {round}");
+    }
+}
