@@ -184,9 +184,9 @@ fn interphase_momentum_balances_exactly() {
         let mut coupling = Coupling::default();
         let dt = 1e-4;
         for _ in 0..20 {
-            coupling.prepare(&mut gas, particles.iter().copied(), dt);
+            coupling.prepare(&mut gas, &particles, dt);
             gas.step(dt).expect("gas step");
-            coupling.kicks(&gas, particles.iter().copied(), dt);
+            coupling.kicks(&gas, &particles, dt);
         }
         let to_particles = coupling.exchange_impulse_particles;
         let from_gas = coupling.exchange_impulse_gas;
@@ -252,8 +252,8 @@ fn lone_particle_feels_minus_volume_times_pressure_gradient_anywhere() {
             let p = particle(pos, d, 2500.0);
             let mut coupling = Coupling::default();
             let dt = 1e-4;
-            coupling.prepare(&mut gas, std::iter::once(Some(p)), dt);
-            let kick = coupling.kicks(&gas, std::iter::once(Some(p)), dt)[0];
+            coupling.prepare(&mut gas, &[Some(p)], dt);
+            let kick = coupling.kicks(&gas, &[Some(p)], dt)[0];
             let volume = std::f64::consts::PI / 6.0 * d * d * d;
             let mut expected = DVec3::ZERO;
             for &a in gas.grid.velocity_axes() {
@@ -529,9 +529,9 @@ fn pressure_force_on_a_fixed_bed_at_the_distributor_balances_the_gas() {
     let dt = 1e-4;
     let mut force = DVec3::ZERO;
     for _ in 0..4000 {
-        coupling.prepare(&mut gas, particles.iter().copied(), dt);
+        coupling.prepare(&mut gas, &particles, dt);
         gas.step(dt).expect("gas step");
-        let kicks = coupling.kicks(&gas, particles.iter().copied(), dt);
+        let kicks = coupling.kicks(&gas, &particles, dt);
         force = particles
             .iter()
             .zip(kicks)
@@ -594,9 +594,9 @@ fn fine_particle_relaxes_to_its_terminal_velocity_without_overshoot() {
     let dt = 1e-4;
     let mut speeds = Vec::new();
     for _ in 0..4 {
-        coupling.prepare(&mut gas, std::iter::once(Some(p)), dt);
+        coupling.prepare(&mut gas, &[Some(p)], dt);
         gas.step(dt).expect("gas step");
-        let kick = coupling.kicks(&gas, std::iter::once(Some(p)), dt)[0];
+        let kick = coupling.kicks(&gas, &[Some(p)], dt)[0];
         p.vel += kick;
         speeds.push(-p.vel.y);
     }

@@ -238,15 +238,9 @@ impl Coupling {
 
     /// Step 1, for a flow step of `dt` (s): gas fraction into the gas phase,
     /// per-particle drag coefficients and relaxation factors, and (two-way)
-    /// the drag sink and pressure share at the faces. `slots` yields the
+    /// the drag sink and pressure share at the faces. `views` holds the
     /// engine's slots in order (`None` for free slots).
-    pub fn prepare(
-        &mut self,
-        gas: &mut GasPhase,
-        slots: impl Iterator<Item = Option<ParticleView>> + Clone,
-        dt: f64,
-    ) {
-        let views: Vec<Option<ParticleView>> = slots.collect();
+    pub fn prepare(&mut self, gas: &mut GasPhase, views: &[Option<ParticleView>], dt: f64) {
         self.gas_fraction(gas, views.iter().copied());
         let two_way = gas.config.two_way;
         if two_way {
@@ -323,12 +317,7 @@ impl Coupling {
     /// the gas at its new level. The particles must not have moved since
     /// [`Coupling::prepare`]. Also books the interphase impulse on both
     /// sides.
-    pub fn kicks(
-        &mut self,
-        gas: &GasPhase,
-        slots: impl Iterator<Item = Option<ParticleView>>,
-        dt: f64,
-    ) -> &[DVec3] {
+    pub fn kicks(&mut self, gas: &GasPhase, views: &[Option<ParticleView>], dt: f64) -> &[DVec3] {
         self.kicks.clear();
         face_pressure_gradient(gas, &mut self.gradient);
         let mut from_gas = DVec3::ZERO;
@@ -352,7 +341,6 @@ impl Coupling {
         }
         let gravity = gas.gravity();
         let (_, face_strides) = strides(&gas.grid);
-        let views: Vec<Option<ParticleView>> = slots.collect();
         let (axes, velocity, gradient) = (gas.grid.velocity_axes(), &gas.velocity, &self.gradient);
         let per_slot = self
             .stencils

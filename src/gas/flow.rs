@@ -11,7 +11,7 @@ use super::config::GasConfig;
 use super::coupling::Coupling;
 use super::solver::{GasError, GasPhase};
 use crate::domain::grid::GridGeometry;
-use crate::engine::ParticleDynamics;
+use crate::engine::{ParticleDynamics, ParticleView};
 
 mod state;
 pub use state::GasRunState;
@@ -43,6 +43,9 @@ pub struct GasRun {
     /// given after the flight, per slot, with the id of the particle it
     /// belongs to ([`GasRun::finish_kicks`]).
     deferred: Vec<(u64, DVec3)>,
+    /// Every slot's particle at the start of the current step (a buffer
+    /// kept between steps).
+    views: Vec<Option<ParticleView>>,
 }
 
 /// Totals over a run, for `summary.json`.
@@ -115,6 +118,7 @@ impl GasRun {
             totals: GasTotals::default(),
             interval: IntervalStats::default(),
             deferred: Vec::new(),
+            views: Vec::new(),
         }
     }
 
@@ -167,17 +171,22 @@ impl GasRun {
         half: bool,
     ) -> Result<(), GasError> {
         let start = crate::timing::cpu_time();
-        let slots = (0..engine.slots()).map(|i| engine.particle(i));
-        self.coupling.prepare(&mut self.gas, slots.clone(), dt);
+        // One view of every slot serves the whole step: the particles do
+        // not move before the kicks.
+        self.views.clear();
+        self.views
+            .extend((0..engine.slots()).map(|i| engine.particle(i)));
+        self.coupling.prepare(&mut self.gas, &self.views, dt);
         let solver_start = crate::timing::cpu_time();
         let stats = self.gas.step(dt)?;
         self.totals.solver_cpu_seconds += crate::timing::cpu_time() - solver_start;
-        let kicks = self.coupling.kicks(&self.gas, slots.clone(), dt);
+        let kicks = self.coupling.kicks(&self.gas, &self.views, dt);
         if half {
             let halves: Vec<DVec3> = kicks.iter().map(|k| 0.5 * *k).collect();
             self.deferred.clear();
             self.deferred.extend(
-                slots
+                self.views
+                    .iter()
                     .zip(&halves)
                     .map(|(p, &k)| (p.map_or(u64::MAX, |p| p.id), k)),
             );

@@ -207,7 +207,7 @@ pub fn fixed_bed(u_superficial: f64) -> (f64, f64, f64, f64) {
     let mut coupling = Coupling::default();
     let dt = 1e-4;
     for _ in 0..3000 {
-        coupling.prepare(&mut gas, particles.iter().copied(), dt);
+        coupling.prepare(&mut gas, &particles, dt);
         gas.step(dt).expect("gas step");
     }
     let eps_g = 1.0 - std::f64::consts::PI * d.powi(3) / (6.0 * a.powi(3));
