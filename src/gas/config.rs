@@ -177,7 +177,7 @@ pub struct GasConfig {
     pub pressure_solver: PressureSolverKind,
     /// Relative tolerance of the linear pressure solve.
     pub linear_tolerance: f64,
-    /// Outer (Newton) iterations on the mass residual: stop when the largest
+    /// Outer (chord) iterations on the mass residual: stop when the largest
     /// cell mass residual over the cell mass is below `mass_tolerance`.
     pub mass_tolerance: f64,
     pub max_outer_iterations: usize,

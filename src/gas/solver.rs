@@ -726,7 +726,7 @@ impl GasPhase {
             self.momentum_and_residual(dt);
             let worst = self.worst_residual();
             let refresh_jacobian =
-                stats.outer_iterations == 0 || !(worst.0 * CHORD_CONTRACTION <= previous);
+                stats.outer_iterations == 0 || worst.0 * CHORD_CONTRACTION > previous;
             previous = worst.0;
             stats.mass_residual = worst.0;
             if !worst.0.is_finite() {
