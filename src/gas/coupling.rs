@@ -97,12 +97,12 @@ impl ParticleStencil {
         let (oy, wy) = pick(1);
         let (oz, wz) = pick(2);
         for (&k, &w3) in oz.iter().zip(wz) {
-            let base_z = k * strides[2];
+            let base_z = k as usize * strides[2];
             for (&j, &w2) in oy.iter().zip(wy) {
-                let base = base_z + j * strides[1];
+                let base = base_z + j as usize * strides[1];
                 let w23 = w3 * w2;
                 for (&i, &w1) in ox.iter().zip(wx) {
-                    f(base + i, w23 * w1);
+                    f(base + i as usize, w23 * w1);
                 }
             }
         }
