@@ -3,8 +3,8 @@
 //! compressibility term (diag = Σ|off| · 1.001, face coefficients random in
 //! [0.5, 1.5)), relative tolerance 1e-10.
 //!
-//! "cold" starts from x = 0, alternating between two matrices that differ
-//! by 1e-4 on the diagonal (so the direct solver factors at every call);
+//! "cold" starts from x = 0, alternating between two matrices whose
+//! diagonals differ by a factor 1.0001 (so the direct solver factors at every call);
 //! "warm" starts from the solution for a right-hand side differing by 1 %
 //! (as between consecutive flow steps); "kept-factor" hands the direct
 //! solver the same matrix again (the gas solver's chord iterations), so it

@@ -101,8 +101,8 @@ pub fn hoomans_3d_to_2d(eps_s_3d: f64) -> f64 {
 
 /// 1D overlap fractions along one axis. `offset` is the index along the axis
 /// already multiplied by the stride of the axis in the linear index. Offsets
-/// are 32-bit (80 bytes a value instead of 104): the coupling keeps six of
-/// these per particle, and reads them three times per flow step.
+/// are 32-bit (80 bytes a value): the coupling keeps six of these per
+/// particle and reads them three times per flow step.
 #[derive(Clone, Copy, Debug)]
 pub struct AxisWeights {
     len: usize,

@@ -56,7 +56,6 @@ enum FaceRole {
 
 /// No neighbour (outside the domain, beyond the ghost layer).
 const NONE: u32 = u32::MAX;
-
 /// Flag of a neighbour code: the value is the negated referenced value
 /// (no-slip mirror).
 const NEGATE: u32 = 1 << 31;
