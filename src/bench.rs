@@ -611,7 +611,6 @@ fn run_with<Q: EventQueue>(opts: &BenchOptions) -> BenchResult {
     let energy_end = engine.kinetic_energy().0;
     let temperature = 2.0 * energy_end / (3.0 * n as f64);
     let virial = engine.counters.virial - start.virial;
-    let positions: Vec<DVec3> = engine.particles().map(|p| p.pos).collect();
     let z = 1.0 + virial / (3.0 * n as f64 * temperature * elapsed);
     let counters = engine.counters;
     let skin = engine.skin();
@@ -623,7 +622,7 @@ fn run_with<Q: EventQueue>(opts: &BenchOptions) -> BenchResult {
         .collect();
     // The analysis runs without the engine, so that it does not raise the
     // peak that is reported below.
-    drop(engine);
+    let positions = engine.into_positions();
     let solid_fraction = solid_fraction(&positions, side);
     let (_, peak_rss) = resident_set_bytes();
     BenchResult {

@@ -316,7 +316,7 @@ impl<Q: EventQueue> Engine<Q> {
     fn boundary_event(&self, i: usize, ki: &Kinematics) -> (f64, Scheduled) {
         let (mut best, mut event) = match self.config.neighbours {
             NeighbourSearch::Lists => (
-                geometry::shell_exit_time(ki.pos - self.shells[i].centre, ki.vel, self.config.skin),
+                geometry::shell_exit_time(ki.pos - self.shell_centres[i], ki.vel, self.config.skin),
                 SHELL_EXIT,
             ),
             NeighbourSearch::Cells => self.cell_exit(ki.pos, ki.vel, self.cell(i)),

@@ -93,7 +93,7 @@ impl<Q: EventQueue> Engine<Q> {
                     .members
                     .iter()
                     .zip(&st.centres)
-                    .any(|(&i, c)| self.shells[i].centre != *c)
+                    .any(|(&i, c)| self.shell_centres[i] != *c)
             {
                 self.rebuild_contacts(&mut st);
             }

@@ -4,7 +4,7 @@
 
 use glam::DVec3;
 
-use super::store::{EventKind, Scheduled};
+use super::store::{EventKind, Scheduled, rounded_reach};
 use super::{Engine, NeighbourSearch, Record};
 use crate::domain::{AxisBoundary, Face, IDENTITY_IMAGE, mirror_code};
 use crate::neighbours;
@@ -155,26 +155,32 @@ impl<Q: EventQueue> Engine<Q> {
             self.lists.remove_index(j as usize, i as u32);
         }
         self.lists.clear(i);
-        self.shells[i].centre = centre;
-        let ri = self.shells[i].reach;
+        self.shell_centres[i] = centre;
+        let skin = self.config.skin;
+        let ri = self.kin[i].radius + skin;
         self.cells.place(i, centre);
         // Disjoint field borrows: the grid is read while the lists change.
         let (lists, domain, shifts) = (&mut self.lists, &self.domain, &self.image_shift);
-        let shells = &self.shells;
+        let (centres, kin) = (&self.shell_centres, &self.kin);
         let periodic = self.periodic;
+        let max_reach = ri + rounded_reach(self.r_max + skin);
         self.cells.for_each_near(centre, |j, image| {
             let j = j as usize;
             if j == i {
                 return;
             }
-            let d = shells[j].centre - centre;
+            let d = centres[j] - centre;
             let code = match image {
                 Some(code) => code,
                 None if periodic => domain.image_code(d),
                 None => IDENTITY_IMAGE,
             };
-            let reach = ri + shells[j].rounded_reach();
-            if (d + shifts[code as usize]).length_squared() < reach * reach {
+            let d = d + shifts[code as usize];
+            let distance_squared = d.length_squared();
+            // The partner's radius only for shells near enough to overlap
+            // at the largest radius (its kinematics are another cache line).
+            let within = |reach: f64| distance_squared < reach * reach;
+            if within(max_reach) && within(ri + rounded_reach(kin[j].radius + skin)) {
                 // Entry in i's list: j appears shifted by `code` relative to i.
                 lists.push(i, neighbours::pack(j as u32, code));
                 lists.push(j, neighbours::pack(i as u32, mirror_code(code)));

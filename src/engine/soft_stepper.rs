@@ -341,7 +341,7 @@ impl<Q: EventQueue> Engine<Q> {
         st.contacts = fresh.into_iter().map(|e| e.1).collect();
         st.stale = false;
         if hybrid {
-            st.centres = st.members.iter().map(|&i| self.shells[i].centre).collect();
+            st.centres = st.members.iter().map(|&i| self.shell_centres[i]).collect();
         }
     }
 
@@ -415,7 +415,7 @@ impl<Q: EventQueue> Engine<Q> {
                 slots_changed = true;
                 continue;
             }
-            if (self.kin[i].pos - self.shells[i].centre).length_squared() > skin2 {
+            if (self.kin[i].pos - self.shell_centres[i]).length_squared() > skin2 {
                 self.counters.neighbour_updates += 1;
                 self.rebuild_list(i);
                 st.spheres[i].pos = self.kin[i].pos;

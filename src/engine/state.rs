@@ -16,7 +16,7 @@ use glam::DVec3;
 use rand_xoshiro::Xoshiro256PlusPlus;
 use serde::{Deserialize, Serialize};
 
-use super::store::{Kinematics, PairCandidate, SHELL_EXIT, Shell, Spins};
+use super::store::{Kinematics, PairCandidate, SHELL_EXIT, Spins};
 use super::{CollapseReport, ContactModel, Counters, Engine, SoftStats};
 use crate::neighbours::{CellEntry, NeighbourLists};
 use crate::particles::NewParticle;
@@ -86,7 +86,7 @@ impl<Q: EventQueue> Engine<Q> {
         let (centre, reach) = if self.uses_cells() {
             (self.kin[j].pos, self.kin[j].radius)
         } else {
-            (self.shells[j].centre, self.shells[j].reach)
+            (self.shell_centres[j], self.kin[j].radius + self.config.skin)
         };
         CellEntry {
             centre,
@@ -122,11 +122,12 @@ impl<Q: EventQueue> Engine<Q> {
                 counter: self.counter[i],
                 // Cells mode keeps no shells: its slots record a shell
                 // at the position, which nothing reads back.
-                shell_centre: self.shells.get(i).map_or(self.kin[i].pos, |s| s.centre),
-                shell_reach: self
-                    .shells
+                shell_centre: self
+                    .shell_centres
                     .get(i)
-                    .map_or(self.kin[i].radius + self.config.skin, |s| s.reach),
+                    .copied()
+                    .unwrap_or(self.kin[i].pos),
+                shell_reach: self.kin[i].radius + self.config.skin,
                 face_mask: self.face_mask[i],
                 cell: self.cell_of.get(i).map_or([0; 3], |c| c.map(u64::from)),
                 last_collision: self.last_collision[i],
@@ -209,6 +210,13 @@ impl<Q: EventQueue> Engine<Q> {
             if !(s.pos.is_finite() && s.vel.is_finite() && s.omega.is_finite()) {
                 return Err(format!("slot {i}: position or velocity not finite"));
             }
+            let reach = s.radius + self.config.skin;
+            if !self.uses_cells() && s.shell_reach != reach {
+                return Err(format!(
+                    "particle {}: its neighbour shell reaches {} m, but radius plus skin is {} m in this scenario (written with another skin)",
+                    s.id, s.shell_reach, reach
+                ));
+            }
         }
         self.kin = state
             .slots
@@ -227,17 +235,10 @@ impl<Q: EventQueue> Engine<Q> {
         self.active = state.slots.iter().map(|s| s.active).collect();
         self.counter = state.slots.iter().map(|s| s.counter).collect();
         self.scheduled = vec![SHELL_EXIT; n];
-        self.shells = if self.uses_cells() {
+        self.shell_centres = if self.uses_cells() {
             Vec::new()
         } else {
-            state
-                .slots
-                .iter()
-                .map(|s| Shell {
-                    centre: s.shell_centre,
-                    reach: s.shell_reach,
-                })
-                .collect()
+            state.slots.iter().map(|s| s.shell_centre).collect()
         };
         self.face_mask = state.slots.iter().map(|s| s.face_mask).collect();
         if self.uses_cells() {

@@ -37,22 +37,14 @@ impl From<ParticleView> for NewParticle {
     }
 }
 
-/// A neighbour shell: centre where the list was built, radius `R + δ`.
-#[derive(Clone, Copy, Debug, Default)]
-#[repr(C, align(32))]
-pub(super) struct Shell {
-    pub(super) centre: DVec3,
-    pub(super) reach: f64,
-}
-
-impl Shell {
-    /// The reach rounded up to f32 and back (m): the test that links two
-    /// shells uses it (slightly generous lists are safe, missing pairs
-    /// would not be), as it did when the grid stored the reach as f32.
-    #[inline]
-    pub(super) fn rounded_reach(&self) -> f64 {
-        f64::from((self.reach as f32).next_up())
-    }
+/// A neighbour shell's reach `R + δ` (m) rounded up to f32 and back: the
+/// test that links two shells uses it for the partner (slightly generous
+/// lists are safe, missing pairs would not be), as it did when the grid
+/// stored the reach as f32. Shells store only their centres: the reach
+/// follows from the radius and the skin.
+#[inline]
+pub(super) fn rounded_reach(reach: f64) -> f64 {
+    f64::from((reach as f32).next_up())
 }
 
 /// Angular velocities (rad/s), one per slot, stored only once some
@@ -242,16 +234,11 @@ impl<Q: EventQueue> Engine<Q> {
             self.lists = NeighbourLists::default();
             self.lists = NeighbourLists::new(n, stride);
         }
-        // Lists mode: each shell starts afresh at the particle (its reach
-        // is the radius plus the skin, as at insertion); in place, so that
-        // the peak memory holds one array.
+        // Lists mode: each shell starts afresh at the particle, in place,
+        // so that the peak memory holds one array.
         if !self.uses_cells() {
-            let skin = self.config.skin;
-            self.shells.clear();
-            self.shells.extend(self.kin.iter().map(|k| Shell {
-                centre: k.pos,
-                reach: k.radius + skin,
-            }));
+            self.shell_centres.clear();
+            self.shell_centres.extend(self.kin.iter().map(|k| k.pos));
         }
         self.cells.empty(n);
         for i in 0..n {

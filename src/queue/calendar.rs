@@ -405,7 +405,11 @@ fn swap_remove(v: &mut Vec<u32>, slots: &mut [Slot], pos: usize) {
 
 impl EventQueue for CalendarQueue {
     fn with_capacity(n: usize) -> Self {
-        let nb = n.max(MIN_BUCKETS).next_power_of_two();
+        // About n / EVENTS_PER_BUCKET buckets: with one event per particle
+        // the window spans about the time in which n events fall (the later
+        // ones wait in the overflow), at 16 bytes of ring per particle.
+        let nb = (n as f64 / EVENTS_PER_BUCKET).ceil() as usize;
+        let nb = nb.max(MIN_BUCKETS).next_power_of_two();
         Self {
             slots: vec![NO_SLOT; n],
             heap: Vec::new(),
