@@ -532,8 +532,8 @@ fn inflow_courant_number_is_checked() {
     assert_contains(
         &e,
         &[
-            "gas.jets[0].velocity: the gas Courant number 1000.0 m/s x time.dt_flow 0.01 s / cell size 2.000e-2 m = 500.000 exceeds 1",
-            "allowed: speed <= 2.0000e0 m/s, or time.dt_flow <= 2.0000e-5 s",
+            "gas.jets[0].velocity: the gas Courant number 1000.0 m/s x time.dt_flow 0.01 s / cell size 2.000e-2 m = 500.000 exceeds 16 (the gas convection is explicit, and a flow step takes at most 16 gas sub-steps)",
+            "allowed: speed <= 3.2000e1 m/s, or time.dt_flow <= 3.2000e-4 s",
         ],
     );
 }

@@ -4,7 +4,9 @@
 //! Each particle feels seed 001 Eq. 1 without contacts:
 //! `m dv/dt = K (u(r_i) − v) − V_p ∇p(r_i) + m g`, with `K = V_p β/ε_s`
 //! (kg/s). Over a flow step `dt` the gas fields are held at their new level
-//! and the equation is integrated exactly (exponential integrator):
+//! (the means over the gas sub-steps when the step takes several,
+//! `GasPhase::step`) and the equation is integrated exactly (exponential
+//! integrator):
 //! `Δv = φ(λ) dt F/m` with `F` the force at the start of the step,
 //! `λ = K dt/m` and `φ(λ) = (1 − e^{−λ})/λ`. This is unconditionally
 //! stable: a particle whose drag relaxation time is far below `dt` relaxes
@@ -319,14 +321,16 @@ impl Coupling {
     /// sides.
     pub fn kicks(&mut self, gas: &GasPhase, views: &[Option<ParticleView>], dt: f64) -> &[DVec3] {
         self.kicks.clear();
-        face_pressure_gradient(gas, &mut self.gradient);
+        // Over a step taken in sub-steps, the means over them (`GasPhase::step`).
+        let velocity = gas.flow_step_velocity();
+        face_pressure_gradient(gas, gas.flow_step_pressure(), &mut self.gradient);
         let mut from_gas = DVec3::ZERO;
         let volume = gas.grid.cell_volume();
         for &a in gas.grid.velocity_axes() {
             for (f, g) in self.gradient[a].iter_mut().enumerate() {
                 // The gas gives up its sink and the pressure force on the
                 // share (1 − ε^p) of the face volume.
-                let sink = gas.drag_alpha[a][f] + gas.drag_beta[a][f] * gas.velocity[a][f];
+                let sink = gas.drag_alpha[a][f] + gas.drag_beta[a][f] * velocity[a][f];
                 let particles = 1.0 - gas.pressure_share[a][f];
                 from_gas[a] += (sink - particles * *g) * volume * dt;
                 // Floored faces: the particles take only what the gas gave up.
@@ -341,7 +345,7 @@ impl Coupling {
         }
         let gravity = gas.gravity();
         let (_, face_strides) = strides(&gas.grid);
-        let (axes, velocity, gradient) = (gas.grid.velocity_axes(), &gas.velocity, &self.gradient);
+        let (axes, gradient) = (gas.grid.velocity_axes(), &self.gradient);
         let per_slot = self
             .stencils
             .par_iter()
@@ -383,9 +387,10 @@ fn sphere_volume(r: f64) -> f64 {
     4.0 / 3.0 * std::f64::consts::PI * r * r * r
 }
 
-/// Pressure gradient normal to each interior face (Pa/m), per axis
-/// (zero on boundary faces, which carry no particle weight).
-pub fn face_pressure_gradient(gas: &GasPhase, out: &mut [Vec<f64>; 3]) {
+/// Gradient of the cell `pressure` (Pa) normal to each interior face of
+/// the gas grid (Pa/m), per axis (zero on boundary faces, which carry no
+/// particle weight).
+fn face_pressure_gradient(gas: &GasPhase, pressure: &[f64], out: &mut [Vec<f64>; 3]) {
     let grid = &gas.grid;
     for &a in grid.velocity_axes() {
         out[a].clear();
@@ -398,7 +403,7 @@ pub fn face_pressure_gradient(gas: &GasPhase, out: &mut [Vec<f64>; 3]) {
             }
             let mut lower = c;
             lower[a] = if c[a] == 0 { grid.n[a] - 1 } else { c[a] - 1 };
-            *g = (gas.pressure[grid.cell_index(c)] - gas.pressure[grid.cell_index(lower)]) / h;
+            *g = (pressure[grid.cell_index(c)] - pressure[grid.cell_index(lower)]) / h;
         }
     }
 }

@@ -51,9 +51,13 @@ pub struct GasRun {
 /// Totals over a run, for `summary.json`.
 #[derive(Clone, Copy, Debug, Default, serde::Serialize, serde::Deserialize)]
 pub struct GasTotals {
+    /// Flow steps.
     pub steps: u64,
+    /// Chord iterations and linear-solver iterations, summed over the gas
+    /// sub-steps.
     pub outer_iterations: u64,
     pub linear_iterations: u64,
+    /// Largest convective Courant number of a gas sub-step.
     pub max_courant: f64,
     pub max_mass_residual: f64,
     pub clamped_cells: u64,
@@ -194,7 +198,9 @@ impl GasRun {
         } else {
             engine.kick_slots(kicks);
         }
-        let courant = self.gas.courant(dt);
+        // Of the gas sub-steps (`GasPhase::step`), which is what the
+        // explicit convection sees.
+        let courant = self.gas.courant(dt / stats.substeps as f64);
         let pressure_drop = self.pressure_drop();
         let gas_support = pressure_drop + self.momentum_inflow();
         let t = &mut self.totals;

@@ -69,6 +69,14 @@ const INDEX: u32 = GHOST - 1;
 /// (25389 against 25511 over 6667 flow steps of 3e-4 s).
 const CHORD_CONTRACTION: f64 = 10.0;
 
+/// Largest convective Courant number `|u| Δt / h` of one gas sub-step: the
+/// convection is explicit ([`GasPhase::step`]).
+pub const MAX_SUBSTEP_COURANT: f64 = 1.0;
+
+/// Most sub-steps of one flow step; the scenario checks limit the inflow
+/// Courant number of a flow step to this many times [`MAX_SUBSTEP_COURANT`].
+pub const MAX_GAS_SUBSTEPS: usize = 16;
+
 /// Velocity from a neighbour code (see [`InteriorFace::nb`]).
 #[inline(always)]
 fn fetch(u: &[f64], code: u32) -> Option<f64> {
@@ -111,6 +119,8 @@ pub struct StepStats {
     pub linear_iterations: usize,
     /// Largest cell mass residual over the cell gas mass at the end.
     pub mass_residual: f64,
+    /// Sub-steps the step took ([`GasPhase::step`]).
+    pub substeps: usize,
 }
 
 /// Why a gas step failed. The messages state what failed; `edpm run` adds
@@ -182,6 +192,11 @@ pub struct GasPhase {
     linear: Box<dyn PressureSolver + Send>,
     /// Time of the current level (s).
     pub time: f64,
+    /// Sub-steps of the last [`GasPhase::step`], and (when more than one)
+    /// the means over them of the face velocities and cell pressures.
+    substeps: usize,
+    mean_velocity: [Vec<f64>; 3],
+    mean_pressure: Vec<f64>,
 }
 
 /// Van Leer's flux limiter ψ(r).
@@ -285,6 +300,9 @@ impl GasPhase {
             correction: vec![0.0; cells],
             linear,
             time: 0.0,
+            substeps: 1,
+            mean_velocity: Default::default(),
+            mean_pressure: Vec::new(),
             grid,
             config,
         };
@@ -697,10 +715,137 @@ impl GasPhase {
         self.gas_fraction.copy_from_slice(new);
     }
 
-    /// Advances the gas by `dt` (s). Before the call, the new gas fraction
-    /// must have been set ([`GasPhase::set_gas_fraction`]) and
+    /// Advances the gas by a flow step `dt` (s). Before the call, the new
+    /// gas fraction must have been set ([`GasPhase::set_gas_fraction`]) and
     /// `drag_beta`/`drag_alpha` hold the drag sink from the particles.
+    ///
+    /// The convection is explicit: a step whose Courant number (of the gas
+    /// at the start of the step, or of any inflow or jet) exceeds
+    /// [`MAX_SUBSTEP_COURANT`] is taken as `m` equal sub-steps, with the
+    /// drag sink held and the gas fraction going linearly from the old
+    /// level to the new. The particles then feel the means over the
+    /// sub-steps of the gas velocity and pressure
+    /// ([`GasPhase::flow_step_velocity`], [`GasPhase::flow_step_pressure`]):
+    /// the drag sink is linear in the gas velocity and the pressure force in
+    /// the pressure, so what the gas gives up over the sub-steps is what the
+    /// particles receive (`gas::coupling`), to round-off. One sub-step
+    /// (every step within the Courant limit) is the plain step.
     pub fn step(&mut self, dt: f64) -> Result<StepStats, GasError> {
+        let m = self.substeps_for(dt);
+        self.substeps = m;
+        if m == 1 {
+            return Ok(StepStats {
+                substeps: 1,
+                ..self.substep(dt)?
+            });
+        }
+        let (start, end) = (self.gas_fraction_old.clone(), self.gas_fraction.clone());
+        // Gas fraction after k of the m sub-steps (the levels themselves at
+        // k = 0 and k = m).
+        let level = |k: usize, out: &mut [f64]| {
+            let s = k as f64 / m as f64;
+            for ((o, &a), &b) in out.iter_mut().zip(&start).zip(&end) {
+                *o = match k {
+                    0 => a,
+                    k if k == m => b,
+                    _ => a + (b - a) * s,
+                };
+            }
+        };
+        for a in 0..3 {
+            self.mean_velocity[a].clear();
+            self.mean_velocity[a].resize(self.velocity[a].len(), 0.0);
+        }
+        self.mean_pressure.clear();
+        self.mean_pressure.resize(self.pressure.len(), 0.0);
+        let t0 = self.time;
+        let mut stats = StepStats {
+            substeps: m,
+            ..StepStats::default()
+        };
+        for k in 1..=m {
+            level(k - 1, &mut self.gas_fraction_old);
+            level(k, &mut self.gas_fraction);
+            let t = if k == m {
+                t0 + dt
+            } else {
+                t0 + dt * k as f64 / m as f64
+            };
+            let sub = self.substep(t - self.time)?;
+            self.time = t;
+            stats.outer_iterations += sub.outer_iterations;
+            stats.linear_iterations += sub.linear_iterations;
+            stats.mass_residual = stats.mass_residual.max(sub.mass_residual);
+            for a in 0..3 {
+                for (mean, &u) in self.mean_velocity[a].iter_mut().zip(&self.velocity[a]) {
+                    *mean += u;
+                }
+            }
+            for (mean, &p) in self.mean_pressure.iter_mut().zip(&self.pressure) {
+                *mean += p;
+            }
+        }
+        let inverse = 1.0 / m as f64;
+        for mean in self
+            .mean_velocity
+            .iter_mut()
+            .chain([&mut self.mean_pressure])
+        {
+            mean.iter_mut().for_each(|x| *x *= inverse);
+        }
+        Ok(stats)
+    }
+
+    /// Sub-steps for a flow step of `dt` (s): enough to keep the Courant
+    /// number of the gas at the start of the step, and of every inflow and
+    /// jet, within [`MAX_SUBSTEP_COURANT`]; at most [`MAX_GAS_SUBSTEPS`].
+    fn substeps_for(&self, dt: f64) -> usize {
+        let mut courant = self.courant(dt);
+        for (a, faces) in self.config.faces.iter().enumerate() {
+            for face in faces {
+                if let GasFace::Inflow { velocity } = face {
+                    courant = courant.max(velocity.abs() * dt / self.grid.h[a]);
+                }
+            }
+        }
+        for jet in &self.config.jets {
+            courant = courant.max(jet.velocity.abs() * dt / self.grid.h[jet.axis]);
+        }
+        let m = (courant / MAX_SUBSTEP_COURANT).ceil();
+        if m > 1.0 {
+            (m as usize).min(MAX_GAS_SUBSTEPS)
+        } else {
+            1
+        }
+    }
+
+    /// Sub-steps the last [`GasPhase::step`] took.
+    pub fn substeps(&self) -> usize {
+        self.substeps
+    }
+
+    /// Gas velocities (m/s, interstitial, per face) the particles feel over
+    /// the last [`GasPhase::step`]: the mean over its sub-steps.
+    pub fn flow_step_velocity(&self) -> &[Vec<f64>; 3] {
+        if self.substeps > 1 {
+            &self.mean_velocity
+        } else {
+            &self.velocity
+        }
+    }
+
+    /// Cell pressures (Pa) the particles feel over the last
+    /// [`GasPhase::step`]: the mean over its sub-steps.
+    pub fn flow_step_pressure(&self) -> &[f64] {
+        if self.substeps > 1 {
+            &self.mean_pressure
+        } else {
+            &self.pressure
+        }
+    }
+
+    /// One explicit-convection step of `dt` (s) within the Courant limit.
+    fn substep(&mut self, dt: f64) -> Result<StepStats, GasError> {
         self.density_old.clone_from(&self.density);
         let t_new = self.time + dt;
         self.apply_jets(t_new);

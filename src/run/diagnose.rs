@@ -13,7 +13,8 @@ use crate::scenario::Scenario;
 pub(super) fn gas_failure_causes(g: &GasRun, dt: f64) -> String {
     let grid = &g.gas.grid;
     let mut causes = Vec::new();
-    let now = g.gas.courant(dt);
+    // Per gas sub-step, as `GasTotals::max_courant`.
+    let now = g.gas.courant(dt / g.gas.substeps() as f64);
     let reached = if now.is_finite() {
         g.totals.max_courant.max(now)
     } else {
@@ -32,7 +33,8 @@ pub(super) fn gas_failure_causes(g: &GasRun, dt: f64) -> String {
         })
         .unwrap_or_default();
     causes.push(format!(
-        "the flow step is too long for the gas speeds: with time.dt_flow = {dt:?} s the gas Courant number reached {reached:.3} before the failure{fastest}; the explicit gas convection needs it below about 1: try time.dt_flow <= {:.3e} s{}",
+        "the flow step is too long for the gas speeds: with time.dt_flow = {dt:?} s the gas Courant number reached {reached:.3} before the failure{fastest}; the explicit gas convection needs it below about 1 in each gas sub-step (a flow step takes at most {} sub-steps): try time.dt_flow <= {:.3e} s{}",
+        crate::gas::solver::MAX_GAS_SUBSTEPS,
         dt * 0.5 / reached.max(0.5),
         inflows
             .first()

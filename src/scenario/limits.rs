@@ -42,8 +42,11 @@ pub const DIAMETER_RESOLUTION: f64 = 1e-6;
 /// tolerance of 1e-10 diameters: `U dt_flow ≤ 1e-10 / ε d ≈ 4.5e5 d`.
 pub const CLOCK_RESOLUTION_DIAMETERS: f64 = 1e-10 / f64::EPSILON;
 /// Largest Courant number `u dt_flow / h` of the gas entering the domain:
-/// the convection terms are explicit (seed 000 Eq. 39–41).
-pub const MAX_INFLOW_COURANT: f64 = 1.0;
+/// the convection terms are explicit (seed 000 Eq. 39–41), so the gas
+/// splits a flow step into at most this many sub-steps of Courant number 1
+/// or less (`gas::GasPhase::step`).
+pub const MAX_INFLOW_COURANT: f64 =
+    crate::gas::solver::MAX_GAS_SUBSTEPS as f64 * crate::gas::solver::MAX_SUBSTEP_COURANT;
 /// Particle density range (kg/m³): aerogels are above 0.1, osmium is
 /// 22 600.
 pub const DENSITY_RANGE: (f64, f64) = (0.1, 1e5);
@@ -569,7 +572,8 @@ fn check_gas(ctx: &Ctx, s: &Scenario, gas: &GasConfig, warnings: &mut Vec<String
             return Err(ctx.err(
                 path,
                 format!(
-                    "the gas Courant number {v:?} m/s x time.dt_flow {dt:?} s / cell size {h:.3e} m = {courant:.3} exceeds {MAX_INFLOW_COURANT} (the gas convection is explicit); allowed: speed <= {:.4e} m/s, or time.dt_flow <= {:.4e} s",
+                    "the gas Courant number {v:?} m/s x time.dt_flow {dt:?} s / cell size {h:.3e} m = {courant:.3} exceeds {MAX_INFLOW_COURANT} (the gas convection is explicit, and a flow step takes at most {} gas sub-steps); allowed: speed <= {:.4e} m/s, or time.dt_flow <= {:.4e} s",
+                    crate::gas::solver::MAX_GAS_SUBSTEPS,
                     MAX_INFLOW_COURANT * h / dt,
                     MAX_INFLOW_COURANT * h / v
                 ),

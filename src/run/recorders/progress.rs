@@ -20,7 +20,7 @@ enum Display {
 
 /// Reports simulated time, events per wall second, the estimated time left,
 /// the share of soft particles in soft and hybrid runs and, with gas, the
-/// largest Courant number of the last flow step.
+/// largest Courant number of the last flow step's gas sub-steps.
 pub struct Progress {
     display: Display,
     t_end: f64,
@@ -113,7 +113,12 @@ impl<Q: EventQueue> Recorder<Q> for Progress {
                     line += &format!(", soft {:.1} %", 100.0 * engine.soft_fraction_now());
                 }
                 if let Some(gas) = gas {
-                    line += &format!(", Courant {:.3}", gas.gas.courant(end.dt));
+                    let substeps = gas.gas.substeps();
+                    let courant = gas.gas.courant(end.dt / substeps as f64);
+                    line += &format!(", Courant {courant:.3}");
+                    if substeps > 1 {
+                        line += &format!(" in {substeps} gas sub-steps");
+                    }
                 }
                 eprintln!("{line}");
             }
