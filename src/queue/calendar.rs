@@ -139,6 +139,16 @@ struct Stats {
     heap_events: usize,
 }
 
+/// Ring buckets for `events` pending events: about `events /`
+/// [`EVENTS_PER_BUCKET`], a power of two, at least [`MIN_BUCKETS`]. With one
+/// event per particle the window then spans about the time in which that
+/// many events fall (the later ones wait in the overflow), at 16 bytes of
+/// ring per event.
+fn ring_buckets_for(events: usize) -> usize {
+    let nb = (events as f64 / EVENTS_PER_BUCKET).ceil() as usize;
+    nb.max(MIN_BUCKETS).next_power_of_two()
+}
+
 impl CalendarQueue {
     fn nb(&self) -> u64 {
         self.lines.len() as u64
@@ -361,6 +371,14 @@ impl CalendarQueue {
         self.overflow = all;
         self.staged = false;
         self.stats = Stats::default();
+        // The ring follows the number of events (particles come and go at
+        // inlets and outlets): a window too short for them sends most events
+        // through the overflow, and every few buckets the whole overflow is
+        // redistributed. Every line is empty here.
+        let target = ring_buckets_for(self.len);
+        if target > self.lines.len() || 4 * target < self.lines.len() {
+            self.lines = vec![EMPTY_LINE; target];
+        }
         let Some(first) = self.overflow.iter().map(|e| e.t).reduce(f64::min) else {
             return false;
         };
@@ -405,11 +423,7 @@ fn swap_remove(v: &mut Vec<u32>, slots: &mut [Slot], pos: usize) {
 
 impl EventQueue for CalendarQueue {
     fn with_capacity(n: usize) -> Self {
-        // About n / EVENTS_PER_BUCKET buckets: with one event per particle
-        // the window spans about the time in which n events fall (the later
-        // ones wait in the overflow), at 16 bytes of ring per particle.
-        let nb = (n as f64 / EVENTS_PER_BUCKET).ceil() as usize;
-        let nb = nb.max(MIN_BUCKETS).next_power_of_two();
+        let nb = ring_buckets_for(n);
         Self {
             slots: vec![NO_SLOT; n],
             heap: Vec::new(),
@@ -437,7 +451,7 @@ impl EventQueue for CalendarQueue {
         }
         self.stats.sets += 1;
         if self.stats.sets > 2 * self.len + CHECK_MIN_SETS {
-            if self.width_is_poor() {
+            if self.width_is_poor() || ring_buckets_for(self.len) > self.lines.len() {
                 self.rebuild();
             }
             self.stats = Stats::default();
@@ -568,6 +582,35 @@ mod tests {
         let s = q.stats;
         assert!(s.heap_events <= 8 * s.loads.max(1), "{s:?}");
         assert!(s.empties <= 4 * s.heap_events.max(1), "{s:?}");
+    }
+
+    /// A queue made for few events and then given many (a riser filling
+    /// from its inlet) grows its ring with them. With the ring of its
+    /// construction, 16 buckets of about 2 events, nearly all 20000 would
+    /// wait in the overflow; with the grown ring, as with one made for
+    /// 20000, about half do (exponential delays: the ring spans the dense
+    /// early part). The events still come out in order.
+    #[test]
+    fn ring_grows_with_the_events() {
+        let n = 20_000u32;
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(13);
+        let mut q = CalendarQueue::with_capacity(0);
+        assert_eq!(q.lines.len(), MIN_BUCKETS);
+        let mut last = 0.0;
+        for i in 0..n {
+            let (t, j) = q.peek_min().unwrap_or((0.0, i));
+            assert!(t >= last, "event at {t} after {last}");
+            last = t;
+            q.set(j, t + rng.random::<f64>());
+            q.set(i, t + rng.random::<f64>());
+        }
+        hold(&mut q, &mut rng, n, 1.0, 100_000);
+        assert_eq!(q.lines.len(), ring_buckets_for(n as usize));
+        assert!(
+            q.overflow.len() < 3 * n as usize / 4,
+            "{} of {n} events in the overflow",
+            q.overflow.len()
+        );
     }
 
     /// After `clear` and a refill at a new time scale, the first `peek_min`
