@@ -3,6 +3,10 @@
 //! Each iteration is one engine-like event: peek the minimum `(t, i)`, then
 //! reschedule `i` and one random particle `j` at `t + Exp(1)`. Random numbers
 //! come from a precomputed table so the timing is the queue's own.
+//!
+//! `calendar-from-empty` is the calendar queue built for no events and then
+//! filled, as in a riser that starts empty: its ring must grow to the
+//! events to match `calendar`.
 
 use std::hint::black_box;
 
@@ -52,12 +56,13 @@ fn step<Q: EventQueue>(q: &mut Q, draws: &mut Draws) {
     }
 }
 
-fn bench_queue<Q: EventQueue>(c: &mut Criterion, name: &str) {
+/// `capacity(n)`: the size the queue is built for, before `n` events.
+fn bench_queue<Q: EventQueue>(c: &mut Criterion, name: &str, capacity: fn(usize) -> usize) {
     let mut group = c.benchmark_group("hold");
     group.throughput(Throughput::Elements(1));
     for n in [10_000usize, 100_000] {
         let mut draws = Draws::new(n, 7);
-        let mut q = Q::with_capacity(n);
+        let mut q = Q::with_capacity(capacity(n));
         for i in 0..n {
             let (a, _, _) = draws.draw();
             q.set(i as u32, a);
@@ -74,9 +79,11 @@ fn bench_queue<Q: EventQueue>(c: &mut Criterion, name: &str) {
 }
 
 fn benches(c: &mut Criterion) {
-    bench_queue::<ReferenceQueue>(c, "reference");
-    bench_queue::<IndexedHeap>(c, "indexed-heap");
-    bench_queue::<CalendarQueue>(c, "calendar");
+    let sized = |n| n;
+    bench_queue::<ReferenceQueue>(c, "reference", sized);
+    bench_queue::<IndexedHeap>(c, "indexed-heap", sized);
+    bench_queue::<CalendarQueue>(c, "calendar", sized);
+    bench_queue::<CalendarQueue>(c, "calendar-from-empty", |_| 0);
 }
 
 criterion_group! {
