@@ -196,7 +196,8 @@ fn interphase_momentum_balances_exactly() {
         let mut substeps = 0;
         for _ in 0..20 {
             coupling.prepare(&mut gas, &particles, dt);
-            substeps = substeps.max(gas.step(dt).expect("gas step").substeps);
+            gas.step(dt).expect("gas step");
+            substeps = substeps.max(gas.substeps());
             coupling.kicks(&gas, &particles, dt);
         }
         // (The start-up transient may need sub-steps at the short step too.)
@@ -262,12 +263,14 @@ fn a_long_gas_step_equals_its_sub_steps() {
     };
     let dt = 0.024;
     long.set_gas_fraction(&end);
-    assert_eq!(long.step(dt).expect("long step").substeps, 3);
+    long.step(dt).expect("long step");
+    assert_eq!(long.substeps(), 3);
     let mut mean_u: [Vec<f64>; 3] = std::array::from_fn(|a| vec![0.0; short.velocity[a].len()]);
     let mut mean_p = vec![0.0; cells];
     for k in 1..=3 {
         short.set_gas_fraction(&level(k));
-        assert_eq!(short.step(dt / 3.0).expect("sub-step").substeps, 1);
+        short.step(dt / 3.0).expect("sub-step");
+        assert_eq!(short.substeps(), 1);
         for (mean, velocity) in mean_u.iter_mut().zip(&short.velocity) {
             for (m, u) in mean.iter_mut().zip(velocity) {
                 *m += u / 3.0;

@@ -198,9 +198,7 @@ impl GasRun {
         } else {
             engine.kick_slots(kicks);
         }
-        // Of the gas sub-steps (`GasPhase::step`), which is what the
-        // explicit convection sees.
-        let courant = self.gas.courant(dt / stats.substeps as f64);
+        let courant = self.gas.substep_courant(dt);
         let pressure_drop = self.pressure_drop();
         let gas_support = pressure_drop + self.momentum_inflow();
         let t = &mut self.totals;

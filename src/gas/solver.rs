@@ -119,8 +119,6 @@ pub struct StepStats {
     pub linear_iterations: usize,
     /// Largest cell mass residual over the cell gas mass at the end.
     pub mass_residual: f64,
-    /// Sub-steps the step took ([`GasPhase::step`]).
-    pub substeps: usize,
 }
 
 /// Why a gas step failed. The messages state what failed; `edpm run` adds
@@ -734,10 +732,7 @@ impl GasPhase {
         let m = self.substeps_for(dt);
         self.substeps = m;
         if m == 1 {
-            return Ok(StepStats {
-                substeps: 1,
-                ..self.substep(dt)?
-            });
+            return self.substep(dt);
         }
         let (start, end) = (self.gas_fraction_old.clone(), self.gas_fraction.clone());
         // Gas fraction after k of the m sub-steps (the levels themselves at
@@ -759,10 +754,7 @@ impl GasPhase {
         self.mean_pressure.clear();
         self.mean_pressure.resize(self.pressure.len(), 0.0);
         let t0 = self.time;
-        let mut stats = StepStats {
-            substeps: m,
-            ..StepStats::default()
-        };
+        let mut stats = StepStats::default();
         for k in 1..=m {
             level(k - 1, &mut self.gas_fraction_old);
             level(k, &mut self.gas_fraction);
@@ -819,9 +811,16 @@ impl GasPhase {
         }
     }
 
-    /// Sub-steps the last [`GasPhase::step`] took.
+    /// Sub-steps the last (or the failed) [`GasPhase::step`] took.
     pub fn substeps(&self) -> usize {
         self.substeps
+    }
+
+    /// Convective Courant number of the gas now over one sub-step of the
+    /// last [`GasPhase::step`], of length `dt` (s): what the explicit
+    /// convection sees.
+    pub fn substep_courant(&self, dt: f64) -> f64 {
+        self.courant(dt / self.substeps as f64)
     }
 
     /// Gas velocities (m/s, interstitial, per face) the particles feel over

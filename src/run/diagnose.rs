@@ -14,7 +14,7 @@ pub(super) fn gas_failure_causes(g: &GasRun, dt: f64) -> String {
     let grid = &g.gas.grid;
     let mut causes = Vec::new();
     // Per gas sub-step, as `GasTotals::max_courant`.
-    let now = g.gas.courant(dt / g.gas.substeps() as f64);
+    let now = g.gas.substep_courant(dt);
     let reached = if now.is_finite() {
         g.totals.max_courant.max(now)
     } else {

@@ -113,9 +113,9 @@ impl<Q: EventQueue> Recorder<Q> for Progress {
                     line += &format!(", soft {:.1} %", 100.0 * engine.soft_fraction_now());
                 }
                 if let Some(gas) = gas {
-                    let substeps = gas.gas.substeps();
-                    let courant = gas.gas.courant(end.dt / substeps as f64);
+                    let courant = gas.gas.substep_courant(end.dt);
                     line += &format!(", Courant {courant:.3}");
+                    let substeps = gas.gas.substeps();
                     if substeps > 1 {
                         line += &format!(" in {substeps} gas sub-steps");
                     }
