@@ -21,7 +21,7 @@ use rand_xoshiro::Xoshiro256PlusPlus;
 
 use crate::collision::ContactParams;
 use crate::domain::{AxisBoundary, Domain};
-use crate::engine::{Engine, EngineConfig, NeighbourSearch, auto_neighbour_search};
+use crate::engine::{Engine, EngineConfig, NeighbourSearch, Prefetch, auto_neighbour_search};
 use crate::materials::MaterialTable;
 use crate::particles::NewParticle;
 use crate::queue::{CalendarQueue, EventQueue, IndexedHeap, QueueKind, ReferenceQueue};
@@ -45,6 +45,8 @@ pub struct BenchOptions {
     pub queue: QueueKind,
     /// `None`: chosen by [`crate::engine::auto_neighbour_search`].
     pub neighbours: Option<NeighbourSearch>,
+    /// Whether partner searches prefetch (never changes a result).
+    pub prefetch: Prefetch,
     pub start: Start,
     /// Renumber particles in cell order every this many collisions per
     /// particle (0: never), for memory locality.
@@ -63,6 +65,7 @@ impl Default for BenchOptions {
             skin: DEFAULT_SKIN,
             queue: QueueKind::default(),
             neighbours: None,
+            prefetch: Prefetch::Auto,
             start: Start::Auto,
             reorder_every: 20.0,
             seed: 1,
@@ -114,6 +117,7 @@ pub struct BenchResult {
     pub phi: f64,
     pub queue: QueueKind,
     pub neighbours: NeighbourSearch,
+    pub prefetch: Prefetch,
     /// Neighbour-shell thickness (diameters) the engine used.
     pub skin: f64,
     pub start: Start,
@@ -559,6 +563,7 @@ fn run_with<Q: EventQueue>(opts: &BenchOptions) -> BenchResult {
         skin: opts.skin,
         seed: opts.seed,
         neighbours,
+        prefetch: opts.prefetch,
         ..Default::default()
     };
     // The lattice is made as the engine takes it in (the peak memory
@@ -630,6 +635,7 @@ fn run_with<Q: EventQueue>(opts: &BenchOptions) -> BenchResult {
         phi: opts.phi,
         queue: opts.queue,
         neighbours,
+        prefetch: opts.prefetch,
         skin,
         start: initial,
         flow_step: opts.flow_step,

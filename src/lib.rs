@@ -37,6 +37,7 @@ pub mod materials;
 pub mod neighbours;
 pub mod particles;
 pub mod plot;
+pub mod prefetch;
 pub mod prelude;
 pub mod queue;
 pub mod random;

@@ -13,6 +13,8 @@ use std::collections::HashMap;
 
 use glam::DVec3;
 
+use crate::prefetch::prefetch;
+
 /// Marks an empty link in the cell grid.
 pub const NONE: u32 = u32::MAX;
 
@@ -39,6 +41,9 @@ pub fn unpack(entry: u32) -> (u32, u32) {
 /// up. Small, so that the stride ends close to the longest list (a
 /// geometric growth left up to a third of the array unused at N = 10⁶).
 pub const LIST_STRIDE_STEP: usize = 4;
+
+/// List entries in a 64-byte cache line.
+const LINE_ENTRIES: usize = 16;
 
 /// Per-particle neighbour lists in one flat array with a common stride,
 /// grown by [`LIST_STRIDE_STEP`] entries, in place, when any list fills
@@ -71,6 +76,19 @@ impl NeighbourLists {
     pub fn list(&self, i: usize) -> &[u32] {
         let start = i * self.stride;
         &self.entries[start..start + self.len[i] as usize]
+    }
+
+    /// Starts loading the list of `i` and its length (see
+    /// [`crate::prefetch`]).
+    #[inline]
+    pub fn prefetch(&self, i: usize) {
+        prefetch(&self.len[i]);
+        let list = &self.entries[i * self.stride..(i + 1) * self.stride];
+        for k in (0..list.len()).step_by(LINE_ENTRIES) {
+            prefetch(&list[k]);
+        }
+        // The last line, when the list does not start on a line boundary.
+        prefetch(&list[list.len() - 1]);
     }
 
     /// Appends `entry` to the list of `i`.

@@ -13,6 +13,7 @@ use std::path::Path;
 /// its own stage and earlier ones.
 const STAGES: &[(&str, u32)] = &[
     // Helpers usable everywhere.
+    ("prefetch", 0),
     ("random", 0),
     ("timing", 0),
     // Physics without simulation state: box, particles, pure functions.

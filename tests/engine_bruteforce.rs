@@ -9,7 +9,7 @@
 
 use edpm::collision::ContactParams;
 use edpm::domain::{AxisBoundary, Domain};
-use edpm::engine::{Engine, EngineConfig, NeighbourSearch, Partner};
+use edpm::engine::{Engine, EngineConfig, NeighbourSearch, Partner, Prefetch};
 use edpm::materials::MaterialTable;
 use edpm::particles::NewParticle;
 use edpm::queue::{CalendarQueue, EventQueue, IndexedHeap, ReferenceQueue};
@@ -220,6 +220,7 @@ fn run_case<Q: EventQueue>(
     seed: u64,
     collisions: usize,
     neighbours: NeighbourSearch,
+    prefetch: Prefetch,
 ) -> Vec<(f64, Partner, u32)> {
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
     let particles = random_particles(case, &mut rng);
@@ -233,6 +234,7 @@ fn run_case<Q: EventQueue>(
         skin: 0.2 * case.radius.1,
         record_events: true,
         neighbours,
+        prefetch,
         ..Default::default()
     };
     let mut engine: Engine<Q> = Engine::new(
@@ -384,8 +386,30 @@ fn cases() -> Vec<Case> {
 fn engine_matches_brute_force_for_ten_thousand_collisions() {
     for (k, case) in cases().iter().enumerate() {
         for mode in [NeighbourSearch::Lists, NeighbourSearch::Cells] {
-            let seq = run_case::<IndexedHeap>(case, 100 + k as u64, 10_000, mode);
-            assert_eq!(seq.len(), 10_000);
+            // These systems are below the size where `Auto` prefetches;
+            // `Always` checks the batched searches against the oracle too.
+            for prefetch in [Prefetch::Auto, Prefetch::Always] {
+                let seq = run_case::<IndexedHeap>(case, 100 + k as u64, 10_000, mode, prefetch);
+                assert_eq!(seq.len(), 10_000);
+            }
+        }
+    }
+}
+
+/// The batched, prefetched partner searches evaluate the same candidates
+/// in the same order, so the event sequence is identical bit for bit (the
+/// oracle above would tolerate a reordered near-tie).
+#[test]
+fn prefetching_gives_the_identical_event_sequence() {
+    for (k, case) in cases().iter().enumerate() {
+        for mode in [NeighbourSearch::Lists, NeighbourSearch::Cells] {
+            let run =
+                |prefetch| run_case::<CalendarQueue>(case, 40 + k as u64, 3_000, mode, prefetch);
+            assert!(
+                run(Prefetch::Never) == run(Prefetch::Always),
+                "{} {mode:?}: prefetching changed the event sequence",
+                case.name
+            );
         }
     }
 }
@@ -394,9 +418,10 @@ fn engine_matches_brute_force_for_ten_thousand_collisions() {
 fn every_queue_gives_the_identical_event_sequence() {
     for (k, case) in cases().iter().enumerate() {
         let lists = NeighbourSearch::Lists;
-        let heap = run_case::<IndexedHeap>(case, 7 + k as u64, 2_000, lists);
-        let reference = run_case::<ReferenceQueue>(case, 7 + k as u64, 2_000, lists);
-        let calendar = run_case::<CalendarQueue>(case, 7 + k as u64, 2_000, lists);
+        let auto = Prefetch::Auto;
+        let heap = run_case::<IndexedHeap>(case, 7 + k as u64, 2_000, lists, auto);
+        let reference = run_case::<ReferenceQueue>(case, 7 + k as u64, 2_000, lists, auto);
+        let calendar = run_case::<CalendarQueue>(case, 7 + k as u64, 2_000, lists, auto);
         assert!(heap == reference, "{}: reference queue differs", case.name);
         assert!(heap == calendar, "{}: calendar queue differs", case.name);
     }

@@ -13,6 +13,7 @@ use super::{
 use crate::domain::IDENTITY_IMAGE;
 use crate::geometry;
 use crate::neighbours;
+use crate::prefetch::{Batch, Gather, prefetch};
 use crate::queue::EventQueue;
 
 /// Stall watchdog: a window is `max(STALL_MIN_WINDOW, STALL_EVENTS_PER_PARTICLE
@@ -237,25 +238,28 @@ impl<Q: EventQueue> Engine<Q> {
     fn prediction(&self, i: usize) -> Prediction {
         let ki = self.kin_now(i);
         let (best, event) = self.boundary_event(i, &ki);
-        let mut search = PairSearch::new(self, i, ki);
-        match self.config.neighbours {
+        let found = match self.config.neighbours {
             NeighbourSearch::Lists => {
-                search.best = best;
-                for &entry in self.lists.list(i) {
-                    search.consider(entry, &self.kin, &self.is_soft, &self.image_shift);
+                let mut search = PairSearch::new(self, i, ki, best);
+                // The list is the batch: its records are all requested first.
+                let list = self.lists.list(i);
+                if self.prefetches() {
+                    for &entry in list {
+                        search.prefetch(entry);
+                    }
                 }
+                for &entry in list {
+                    search.take(entry);
+                }
+                search.found
             }
             NeighbourSearch::Cells => {
+                let search = PairSearch::new(self, i, ki, f64::INFINITY);
                 // At least 3 cells per periodic axis: images are exact.
-                self.cells.for_each_near_cell(self.cell(i), |j, image| {
-                    if j as usize != i {
-                        let entry = neighbours::pack(j, image.unwrap_or(IDENTITY_IMAGE));
-                        search.consider(entry, &self.kin, &self.is_soft, &self.image_shift);
-                    }
-                });
+                self.search_cells(search, CellScan::Near)
             }
-        }
-        self.choose(best, event, &search)
+        };
+        self.choose(best, event, &found)
     }
 
     /// Stores prediction `p` of particle i and queues its event.
@@ -285,21 +289,53 @@ impl<Q: EventQueue> Engine<Q> {
         }
         let ki = self.kin_now(i);
         let (best, event) = self.boundary_event(i, &ki);
-        let mut search = PairSearch::new(self, i, ki);
-        self.cells
-            .for_each_in_new_layer(self.cell(i), axis, up, |j, image| {
-                if j as usize != i {
-                    let entry = neighbours::pack(j, image.unwrap_or(IDENTITY_IMAGE));
-                    search.consider(entry, &self.kin, &self.is_soft, &self.image_shift);
+        let search = PairSearch::new(self, i, ki, f64::INFINITY);
+        let mut found = self.search_cells(search, CellScan::NewLayer { axis, up });
+        let now = self.now;
+        if kept.time.is_finite() && now + found.best >= kept.time {
+            found.best = kept.time - now;
+            found.best_entry = Some(kept.entry);
+        }
+        let p = self.choose(best, event, &found);
+        self.apply(i, &p);
+    }
+
+    /// Runs `search` over the entries of the cells `scan` names around
+    /// particle i's cell, except i itself; batched with prefetches when
+    /// [`Engine::prefetches`].
+    #[inline(always)]
+    fn search_cells(&self, mut search: PairSearch, scan: CellScan) -> PairFound {
+        let i = search.index;
+        let entry =
+            |j: u32, image: Option<u32>| neighbours::pack(j, image.unwrap_or(IDENTITY_IMAGE));
+        if self.prefetches() {
+            let mut batch: Batch<PairSearch, PREFETCH_BATCH> = Batch::new(search);
+            self.visit_cells(i as usize, scan, |j, image| {
+                if j != i {
+                    batch.offer(entry(j, image));
                 }
             });
-        let now = self.now;
-        if kept.time.is_finite() && now + search.best >= kept.time {
-            search.best = kept.time - now;
-            search.best_entry = Some(kept.entry);
+            batch.finish().found
+        } else {
+            self.visit_cells(i as usize, scan, |j, image| {
+                if j != i {
+                    search.take(entry(j, image));
+                }
+            });
+            search.found
         }
-        let p = self.choose(best, event, &search);
-        self.apply(i, &p);
+    }
+
+    /// Calls `f(slot, image)` for the entries of the cells `scan` names
+    /// around particle i's cell.
+    #[inline(always)]
+    fn visit_cells(&self, i: usize, scan: CellScan, f: impl FnMut(u32, Option<u32>)) {
+        match scan {
+            CellScan::Near => self.cells.for_each_near_cell(self.cell(i), f),
+            CellScan::NewLayer { axis, up } => {
+                self.cells.for_each_in_new_layer(self.cell(i), axis, up, f)
+            }
+        }
     }
 
     /// Particle i's kinematics moved to the current time (not stored).
@@ -361,11 +397,11 @@ impl<Q: EventQueue> Engine<Q> {
     /// The earlier of the pair `search` found and the boundary `event` at
     /// delay `best` (s).
     #[inline]
-    fn choose(&self, best: f64, event: Scheduled, search: &PairSearch) -> Prediction {
-        let candidate = search.candidate(self.now, &self.counter);
-        match search.best_entry {
-            Some(entry) if search.best < best => Prediction {
-                delay: search.best,
+    fn choose(&self, best: f64, event: Scheduled, found: &PairFound) -> Prediction {
+        let candidate = found.candidate(self.now, &self.counter);
+        match found.best_entry {
+            Some(entry) if found.best < best => Prediction {
+                delay: found.best,
                 event: Scheduled {
                     kind: EventKind::Pair,
                     face: 0,
@@ -424,22 +460,49 @@ pub(super) struct Prediction {
     candidate: PairCandidate,
 }
 
+/// Candidates a batched [`PairSearch`] requests before it evaluates them:
+/// about a neighbour list at φ = 0.45, so that the loads of their records
+/// are all in flight at once.
+const PREFETCH_BATCH: usize = 32;
+
+/// Which cells around a particle's cell a cells-mode search visits.
+#[derive(Clone, Copy)]
+enum CellScan {
+    /// The cell and its neighbours (a full prediction).
+    Near,
+    /// The 9 cells that became adjacent on entering the cell through a
+    /// face of `axis`, moving `up` it or down.
+    NewLayer { axis: usize, up: bool },
+}
+
 /// The search for a particle's earliest pair collision over candidate
 /// partners (list entries or cell entries, packed with their image code).
-struct PairSearch {
+struct PairSearch<'a> {
+    index: u32,
     i: Kinematics,
     now: f64,
-    /// Earliest contact delay found so far (s), and its entry.
-    best: f64,
-    best_entry: Option<u32>,
+    found: PairFound,
     /// The partner not to collide again at delay 0 (see `predict`).
     just_hit: u32,
     soft_i: bool,
+    kin: &'a [Kinematics],
+    is_soft: &'a [bool],
+    shifts: &'a [DVec3; 27],
 }
 
-impl PairSearch {
+/// The earliest pair a [`PairSearch`] found: its delay (s) and entry, or
+/// the search's starting bound and no entry.
+#[derive(Clone, Copy, Debug)]
+struct PairFound {
+    best: f64,
+    best_entry: Option<u32>,
+}
+
+impl<'a> PairSearch<'a> {
+    /// A search from particle i (kinematics `ki` now) for pairs earlier
+    /// than `bound` (s).
     #[inline]
-    fn new<Q: EventQueue>(engine: &Engine<Q>, i: usize, ki: Kinematics) -> Self {
+    fn new<Q: EventQueue>(engine: &'a Engine<Q>, i: usize, ki: Kinematics, bound: f64) -> Self {
         let now = engine.now;
         // A pair that collided at this very instant may still touch and,
         // by round-off, still look approaching; colliding it again at delay
@@ -450,36 +513,55 @@ impl PairSearch {
             NO_PARTNER
         };
         PairSearch {
+            index: i as u32,
             i: ki,
             now,
-            best: f64::INFINITY,
-            best_entry: None,
+            found: PairFound {
+                best: bound,
+                best_entry: None,
+            },
             just_hit,
             soft_i: engine.is_soft[i],
+            kin: &engine.kin,
+            is_soft: &engine.is_soft,
+            shifts: &engine.image_shift,
         }
+    }
+}
+
+impl Gather for PairSearch<'_> {
+    type Item = u32;
+
+    #[inline(always)]
+    fn prefetch(&self, entry: u32) {
+        prefetch(&self.kin[neighbours::unpack(entry).0 as usize]);
     }
 
     /// Takes the partner `entry` into account (Eq. 45).
     #[inline(always)]
-    fn consider(&mut self, entry: u32, kin: &[Kinematics], is_soft: &[bool], shifts: &[DVec3; 27]) {
+    fn take(&mut self, entry: u32) {
         let (j, code) = neighbours::unpack(entry);
         // Hybrid: soft pairs meet through contact forces.
-        if self.soft_i && is_soft[j as usize] {
+        if self.soft_i && self.is_soft[j as usize] {
             return;
         }
-        let kj = &kin[j as usize];
-        let pj = kj.position_at(self.now) + shifts[code as usize];
+        let kj = &self.kin[j as usize];
+        let pj = kj.position_at(self.now) + self.shifts[code as usize];
         let t = geometry::pair_contact_time_eager(
             self.i.pos - pj,
             self.i.vel - kj.vel,
             self.i.radius + kj.radius,
         );
-        if t < self.best && !(t == 0.0 && j == self.just_hit) {
-            self.best = t;
-            self.best_entry = Some(entry);
+        if t < self.found.best && !(t == 0.0 && j == self.just_hit) {
+            self.found = PairFound {
+                best: t,
+                best_entry: Some(entry),
+            };
         }
     }
+}
 
+impl PairFound {
     /// The best pair found, to keep for a later partial prediction.
     #[inline]
     fn candidate(&self, now: f64, counter: &[u32]) -> PairCandidate {

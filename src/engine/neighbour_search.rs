@@ -4,10 +4,11 @@
 
 use glam::DVec3;
 
-use super::store::{EventKind, Scheduled, rounded_reach};
+use super::store::{EventKind, Kinematics, Scheduled, rounded_reach};
 use super::{Engine, NeighbourSearch, Record};
-use crate::domain::{AxisBoundary, Face, IDENTITY_IMAGE, mirror_code};
-use crate::neighbours;
+use crate::domain::{AxisBoundary, Domain, Face, IDENTITY_IMAGE, mirror_code};
+use crate::neighbours::{self, NeighbourLists};
+use crate::prefetch::{Batch, Gather, prefetch};
 use crate::queue::EventQueue;
 
 impl<Q: EventQueue> Engine<Q> {
@@ -150,42 +151,50 @@ impl<Q: EventQueue> Engine<Q> {
             self.sync(i);
             self.set_wrapped_position(i, centre);
         }
+        let batched = self.prefetches();
+        // Old neighbours' lists are requested together, then i leaves each.
+        if batched {
+            for &entry in self.lists.list(i) {
+                self.lists.prefetch(neighbours::unpack(entry).0 as usize);
+            }
+        }
         for k in 0..self.lists.list(i).len() {
             let (j, _) = neighbours::unpack(self.lists.list(i)[k]);
             self.lists.remove_index(j as usize, i as u32);
         }
         self.lists.clear(i);
         self.shell_centres[i] = centre;
-        let skin = self.config.skin;
-        let ri = self.kin[i].radius + skin;
         self.cells.place(i, centre);
-        // Disjoint field borrows: the grid is read while the lists change.
-        let (lists, domain, shifts) = (&mut self.lists, &self.domain, &self.image_shift);
-        let (centres, kin) = (&self.shell_centres, &self.kin);
-        let periodic = self.periodic;
-        let max_reach = ri + rounded_reach(self.r_max + skin);
-        self.cells.for_each_near(centre, |j, image| {
-            let j = j as usize;
-            if j == i {
-                return;
-            }
-            let d = centres[j] - centre;
-            let code = match image {
-                Some(code) => code,
-                None if periodic => domain.image_code(d),
-                None => IDENTITY_IMAGE,
-            };
-            let d = d + shifts[code as usize];
-            let distance_squared = d.length_squared();
-            // The partner's radius only for shells near enough to overlap
-            // at the largest radius (its kinematics are another cache line).
-            let within = |reach: f64| distance_squared < reach * reach;
-            if within(max_reach) && within(ri + rounded_reach(kin[j].radius + skin)) {
-                // Entry in i's list: j appears shifted by `code` relative to i.
-                lists.push(i, neighbours::pack(j as u32, code));
-                lists.push(j, neighbours::pack(i as u32, mirror_code(code)));
-            }
-        });
+        let linker = ShellLinker {
+            i,
+            centre,
+            reach: self.kin[i].radius + self.config.skin,
+            skin: self.config.skin,
+            max_partner_reach: rounded_reach(self.r_max + self.config.skin),
+            periodic: self.periodic,
+            lists: &mut self.lists,
+            domain: &self.domain,
+            shifts: &self.image_shift,
+            centres: &self.shell_centres,
+            kin: &self.kin,
+        };
+        if batched {
+            let mut batch: Batch<ShellLinker, LINK_BATCH> = Batch::new(linker);
+            self.cells.for_each_near(centre, |j, image| {
+                if j as usize != i {
+                    batch.offer((j, image));
+                }
+            });
+            batch.finish();
+        } else {
+            let mut linker = linker;
+            self.cells.for_each_near(centre, |j, image| {
+                if j as usize != i {
+                    linker.take((j, image));
+                }
+            });
+        }
+        let ri = self.kin[i].radius + self.config.skin;
         let mut mask = 0u8;
         for axis in 0..3 {
             if self.domain.axes[axis] != AxisBoundary::Walls {
@@ -205,5 +214,62 @@ impl<Q: EventQueue> Engine<Q> {
             }
         }
         self.face_mask[i] = mask;
+    }
+}
+
+/// Shell candidates a batched [`ShellLinker`] requests before it tests
+/// them (see [`crate::prefetch::Batch`]).
+const LINK_BATCH: usize = 32;
+
+/// Links particle i with every candidate from the cells around its new
+/// shell whose shell overlaps it.
+struct ShellLinker<'a> {
+    i: usize,
+    /// Centre of i's new shell (m, in the box) and its radius `R + δ` (m).
+    centre: DVec3,
+    reach: f64,
+    skin: f64,
+    /// The largest partner shell radius, rounded as stored (m).
+    max_partner_reach: f64,
+    periodic: bool,
+    lists: &'a mut NeighbourLists,
+    domain: &'a Domain,
+    shifts: &'a [DVec3; 27],
+    centres: &'a [DVec3],
+    kin: &'a [Kinematics],
+}
+
+impl Gather for ShellLinker<'_> {
+    /// A candidate's slot and cell image (see
+    /// [`crate::neighbours::CellGrid::for_each_near`]).
+    type Item = (u32, Option<u32>);
+
+    #[inline(always)]
+    fn prefetch(&self, (j, _): Self::Item) {
+        prefetch(&self.centres[j as usize]);
+    }
+
+    #[inline(always)]
+    fn take(&mut self, (j, image): Self::Item) {
+        let (i, j) = (self.i, j as usize);
+        let d = self.centres[j] - self.centre;
+        let code = match image {
+            Some(code) => code,
+            None if self.periodic => self.domain.image_code(d),
+            None => IDENTITY_IMAGE,
+        };
+        let d = d + self.shifts[code as usize];
+        let distance_squared = d.length_squared();
+        // The partner's radius only for shells near enough to overlap at
+        // the largest radius (its kinematics are another cache line).
+        let within = |reach: f64| distance_squared < reach * reach;
+        if within(self.reach + self.max_partner_reach)
+            && within(self.reach + rounded_reach(self.kin[j].radius + self.skin))
+        {
+            // Entry in i's list: j appears shifted by `code` relative to i.
+            self.lists.push(i, neighbours::pack(j as u32, code));
+            self.lists
+                .push(j, neighbours::pack(i as u32, mirror_code(code)));
+        }
     }
 }

@@ -9,7 +9,7 @@ use rand_xoshiro::Xoshiro256PlusPlus;
 use crate::collision::ContactParams;
 use crate::domain::Domain;
 use crate::engine::{
-    ContactModel, Engine, EngineConfig, InletZone, NeighbourSearch, SoftConfig,
+    ContactModel, Engine, EngineConfig, InletZone, NeighbourSearch, Prefetch, SoftConfig,
     auto_neighbour_search,
 };
 use crate::io::output::Checkpoint;
@@ -90,6 +90,7 @@ pub fn build_engine<Q: EventQueue>(s: &Scenario) -> anyhow::Result<Engine<Q>> {
         neighbours: neighbour_search(s, &particles, r_max),
         model: s.engine.model,
         soft: soft_config(s, &particles)?,
+        prefetch: Prefetch::Auto,
     };
     Engine::with_capacity_for_radius(
         engine_domain(s),
