@@ -33,15 +33,15 @@ pub trait Gather {
 /// is requested first, so that its cache misses are in flight together,
 /// then the batch is taken in the order it was offered (the same order,
 /// and the same result, as taking each at once).
-pub struct Batch<G: Gather, const N: usize> {
-    gather: G,
+pub struct Batch<'a, G: Gather, const N: usize> {
+    gather: &'a mut G,
     pending: [G::Item; N],
     len: usize,
 }
 
-impl<G: Gather, const N: usize> Batch<G, N> {
+impl<'a, G: Gather, const N: usize> Batch<'a, G, N> {
     #[inline]
-    pub fn new(gather: G) -> Self {
+    pub fn new(gather: &'a mut G) -> Self {
         Batch {
             gather,
             pending: [G::Item::default(); N],
@@ -60,11 +60,10 @@ impl<G: Gather, const N: usize> Batch<G, N> {
         self.len += 1;
     }
 
-    /// Takes every queued item and returns the consumer.
+    /// Takes every queued item.
     #[inline]
-    pub fn finish(mut self) -> G {
+    pub fn finish(mut self) {
         self.take_pending();
-        self.gather
     }
 
     #[inline(always)]
@@ -95,10 +94,12 @@ mod tests {
     #[test]
     fn a_batch_takes_every_item_in_the_offered_order() {
         // 10 items through batches of 4: two full batches and a partial one.
-        let mut batch: Batch<Log, 4> = Batch::new(Log::default());
+        let mut log = Log::default();
+        let mut batch: Batch<Log, 4> = Batch::new(&mut log);
         for k in 0..10 {
             batch.offer(k);
         }
-        assert_eq!(batch.finish().0, (0..10).collect::<Vec<_>>());
+        batch.finish();
+        assert_eq!(log.0, (0..10).collect::<Vec<_>>());
     }
 }

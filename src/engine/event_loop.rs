@@ -309,13 +309,14 @@ impl<Q: EventQueue> Engine<Q> {
         let entry =
             |j: u32, image: Option<u32>| neighbours::pack(j, image.unwrap_or(IDENTITY_IMAGE));
         if self.prefetches() {
-            let mut batch: Batch<PairSearch, PREFETCH_BATCH> = Batch::new(search);
+            let mut batch: Batch<PairSearch, PREFETCH_BATCH> = Batch::new(&mut search);
             self.visit_cells(i as usize, scan, |j, image| {
                 if j != i {
                     batch.offer(entry(j, image));
                 }
             });
-            batch.finish().found
+            batch.finish();
+            search.found
         } else {
             self.visit_cells(i as usize, scan, |j, image| {
                 if j != i {

@@ -165,7 +165,7 @@ impl<Q: EventQueue> Engine<Q> {
         self.lists.clear(i);
         self.shell_centres[i] = centre;
         self.cells.place(i, centre);
-        let linker = ShellLinker {
+        let mut linker = ShellLinker {
             i,
             centre,
             reach: self.kin[i].radius + self.config.skin,
@@ -179,7 +179,7 @@ impl<Q: EventQueue> Engine<Q> {
             kin: &self.kin,
         };
         if batched {
-            let mut batch: Batch<ShellLinker, LINK_BATCH> = Batch::new(linker);
+            let mut batch: Batch<ShellLinker, LINK_BATCH> = Batch::new(&mut linker);
             self.cells.for_each_near(centre, |j, image| {
                 if j as usize != i {
                     batch.offer((j, image));
@@ -187,7 +187,6 @@ impl<Q: EventQueue> Engine<Q> {
             });
             batch.finish();
         } else {
-            let mut linker = linker;
             self.cells.for_each_near(centre, |j, image| {
                 if j as usize != i {
                     linker.take((j, image));
