@@ -711,7 +711,7 @@ impl<Q: EventQueue> Engine<Q> {
     /// prefetch their records ([`crate::prefetch`]): only for systems whose
     /// kinematics outgrow a 2 MiB cache, where most of those loads miss.
     /// Below, the batches cost more than they save (`edpm bench --n 10976`:
-    /// 6 % fewer collisions per CPU second at φ = 0.3 and 0.45;
+    /// 5–6 % fewer collisions per CPU second at φ = 0.3 and 0.45;
     /// results/benchmarks.md). Either way the candidates are evaluated in
     /// the same order, so the results are the same bit for bit.
     #[inline]
