@@ -165,10 +165,11 @@ impl<Q: EventQueue> Engine<Q> {
         self.lists.clear(i);
         self.shell_centres[i] = centre;
         self.cells.place(i, centre);
+        let ri = self.kin[i].radius + self.config.skin;
         let mut linker = ShellLinker {
             i,
             centre,
-            reach: self.kin[i].radius + self.config.skin,
+            reach: ri,
             skin: self.config.skin,
             max_partner_reach: rounded_reach(self.r_max + self.config.skin),
             periodic: self.periodic,
@@ -193,7 +194,6 @@ impl<Q: EventQueue> Engine<Q> {
                 }
             });
         }
-        let ri = self.kin[i].radius + self.config.skin;
         let mut mask = 0u8;
         for axis in 0..3 {
             if self.domain.axes[axis] != AxisBoundary::Walls {
