@@ -171,12 +171,30 @@ pub const GRID_ENTRY_BUDGET: usize = 1 << 22;
 /// See [`GRID_ENTRY_BUDGET`].
 pub const GRID_ENTRIES_PER_SLOT: usize = 16;
 
+/// The cells of a block scan ([`CellGrid::for_each_in_block`]).
+struct BlockRanges {
+    /// Per axis, the cell indices with the image component of their shift
+    /// (0/1/2 for −L/0/+L), each cell once.
+    ranges: [[(usize, u32); 3]; 3],
+    /// How many of `ranges` are used, per axis.
+    counts: [usize; 3],
+    /// Whether the image codes are exact (every periodic axis has at least
+    /// 3 cells).
+    exact: bool,
+}
+
+/// Spare bytes after a [`CellGrid`]'s occupancy bits, so that a row of
+/// cells can be read as one unaligned 8-byte word.
+const OCCUPANCY_PAD: usize = 8;
+
 /// Heap memory (bytes) of a [`CellGrid`] with `cells` cells and `slots`
 /// particle slots, at most (for memory estimates before a run).
 pub fn grid_bytes_bound(cells: usize, slots: usize) -> usize {
     let budget = GRID_ENTRY_BUDGET.max(GRID_ENTRIES_PER_SLOT.saturating_mul(slots));
     let entry = std::mem::size_of::<u32>();
     cells.saturating_mul(std::mem::size_of::<u32>())
+        + cells.div_ceil(8)
+        + OCCUPANCY_PAD
         + budget.min(cells.saturating_mul(4)).saturating_mul(entry)
         + slots.saturating_mul(entry + std::mem::size_of::<(u32, u32)>())
 }
@@ -194,6 +212,12 @@ pub struct CellGrid {
     periodic: [bool; 3],
     stride: usize,
     len: Vec<u32>,
+    /// One bit per cell, set while the cell holds a particle, in bytes
+    /// with [`OCCUPANCY_PAD`] spare bytes at the end for unaligned reads:
+    /// a search tests a row of 3 cells in one read and visits only the
+    /// occupied ones (at φ = 0.1 four cells in five are empty), without
+    /// loading their counts.
+    occupancy: Vec<u8>,
     /// Slots only (4 bytes an entry): a search reads the particles'
     /// centres from the caller's own arrays, which the engine keeps in
     /// cell order.
@@ -266,6 +290,7 @@ impl CellGrid {
             periodic,
             stride: 1,
             len: vec![0; total],
+            occupancy: vec![0; total.div_ceil(8) + OCCUPANCY_PAD],
             entries: Vec::new(),
             overflow: HashMap::new(),
             position: vec![(NONE, 0); slots],
@@ -294,6 +319,7 @@ impl CellGrid {
     /// would hold the old and new entries at once).
     pub fn empty(&mut self, slots: usize) {
         self.len.fill(0);
+        self.occupancy.fill(0);
         self.overflow.clear();
         self.position.clear();
         self.position.resize(slots, (NONE, 0));
@@ -391,6 +417,7 @@ impl CellGrid {
             self.overflow.entry(cell as u32).or_default().push(entry);
         }
         self.len[cell] += 1;
+        self.occupancy[cell / 8] |= 1 << (cell % 8);
         self.position[i] = (cell as u32, k as u32);
     }
 
@@ -430,6 +457,9 @@ impl CellGrid {
             }
         }
         self.len[cell] -= 1;
+        if self.len[cell] == 0 {
+            self.occupancy[cell / 8] &= !(1 << (cell % 8));
+        }
         self.position[i] = (NONE, 0);
     }
 
@@ -460,6 +490,7 @@ impl CellGrid {
         let overflow: usize = self.overflow.values().map(Vec::capacity).sum();
         (self.entries.len() + overflow) * std::mem::size_of::<u32>()
             + self.len.len() * std::mem::size_of::<u32>()
+            + self.occupancy.len()
             + self.position.len() * std::mem::size_of::<(u32, u32)>()
     }
 
@@ -502,6 +533,8 @@ impl CellGrid {
     /// Calls `f(slot, image)` for every particle of the cells at offsets
     /// `lo..=hi` (each within −1..=1) per axis from cell `c`, wrapping on
     /// periodic axes, each cell once (see [`CellGrid::for_each_near`]).
+    /// Cells are visited z, then y, then x outermost to innermost, and
+    /// only those the occupancy bits mark.
     #[inline]
     fn for_each_in_block(
         &self,
@@ -510,7 +543,75 @@ impl CellGrid {
         hi: [i64; 3],
         mut f: impl FnMut(u32, Option<u32>),
     ) {
-        // Per axis: (cell index, image component 0/1/2 for shift -L/0/+L).
+        let BlockRanges {
+            ranges,
+            counts,
+            exact,
+        } = self.block_ranges(c, lo, hi);
+        if counts.contains(&0) {
+            return;
+        }
+        // Rows along x: flat index of x = 0 and image code of (y, z); bit
+        // 3·row + k of `occupied` is cell ranges[0][k] of the row.
+        let mut row_base = [0usize; 9];
+        let mut row_image = [0u32; 9];
+        let mut occupied = 0u32;
+        let xs = &ranges[0][..counts[0]];
+        // Unwrapped and in order, the row's cells are adjacent bits.
+        let adjacent = xs.windows(2).all(|w| w[1].0 == w[0].0 + 1);
+        let mut row = 0;
+        for &(z, iz) in &ranges[2][..counts[2]] {
+            for &(y, iy) in &ranges[1][..counts[1]] {
+                let base = self.flat([0, y, z]);
+                row_base[row] = base;
+                row_image[row] = 3 * iy + 9 * iz;
+                let bits = if adjacent {
+                    self.occupancy_run(base + xs[0].0, xs.len())
+                } else {
+                    xs.iter().enumerate().fold(0, |bits, (k, &(x, _))| {
+                        bits | (self.occupancy_run(base + x, 1) << k)
+                    })
+                };
+                occupied |= bits << (3 * row);
+                row += 1;
+            }
+        }
+        while occupied != 0 {
+            let bit = occupied.trailing_zeros() as usize;
+            occupied &= occupied - 1;
+            let (row, k) = (bit / 3, bit % 3);
+            let (x, ix) = xs[k];
+            let cell = row_base[row] + x;
+            let image = exact.then_some(ix + row_image[row]);
+            let n = self.len[cell] as usize;
+            let base = cell * self.stride;
+            for &e in &self.entries[base..base + n.min(self.stride)] {
+                f(e, image);
+            }
+            if n > self.stride
+                && let Some(list) = self.overflow.get(&(cell as u32))
+            {
+                for &e in list {
+                    f(e, image);
+                }
+            }
+        }
+    }
+
+    /// The occupancy bits of `len` (at most 3) cells from flat index
+    /// `first` on, in the low bits.
+    #[inline(always)]
+    fn occupancy_run(&self, first: usize, len: usize) -> u32 {
+        let byte = first / 8;
+        let word: [u8; 8] = self.occupancy[byte..byte + 8]
+            .try_into()
+            .expect("OCCUPANCY_PAD keeps 8 bytes readable");
+        ((u64::from_le_bytes(word) >> (first % 8)) & ((1 << len) - 1)) as u32
+    }
+
+    /// The cells at offsets `lo..=hi` from `c`, per axis.
+    #[inline(always)]
+    fn block_ranges(&self, c: [usize; 3], lo: [i64; 3], hi: [i64; 3]) -> BlockRanges {
         let mut ranges = [[(0usize, 1u32); 3]; 3];
         let mut counts = [0usize; 3];
         let mut exact = true;
@@ -536,25 +637,10 @@ impl CellGrid {
             counts[axis] = k;
             exact &= !self.periodic[axis] || n >= 3;
         }
-        for &(z, iz) in &ranges[2][..counts[2]] {
-            for &(y, iy) in &ranges[1][..counts[1]] {
-                for &(x, ix) in &ranges[0][..counts[0]] {
-                    let cell = self.flat([x, y, z]);
-                    let base = cell * self.stride;
-                    let image = exact.then_some(ix + 3 * iy + 9 * iz);
-                    let n = self.len[cell] as usize;
-                    for &e in &self.entries[base..base + n.min(self.stride)] {
-                        f(e, image);
-                    }
-                    if n > self.stride
-                        && let Some(list) = self.overflow.get(&(cell as u32))
-                    {
-                        for &e in list {
-                            f(e, image);
-                        }
-                    }
-                }
-            }
+        BlockRanges {
+            ranges,
+            counts,
+            exact,
         }
     }
 }
@@ -644,6 +730,112 @@ mod tests {
         let n = CellGrid::dims_for(DVec3::new(5.0, 1e4, 1e4), 1.0, [true, false, false]);
         assert!(n[0] >= 3, "{n:?}");
         assert!(n.iter().product::<usize>() <= MAX_CELLS, "{n:?}");
+    }
+
+    /// The cells of a block around `c`, in visiting order (z, y, x), each
+    /// once, with their image codes: the definition the occupancy-bit scan
+    /// must reproduce.
+    fn block_reference(
+        g: &CellGrid,
+        c: [usize; 3],
+        lo: [i64; 3],
+        hi: [i64; 3],
+    ) -> Vec<(usize, Option<u32>)> {
+        let mut per_axis: Vec<Vec<(usize, u32)>> = Vec::new();
+        for axis in 0..3 {
+            let n = g.cells[axis] as i64;
+            let mut seen: Vec<(usize, u32)> = Vec::new();
+            for offset in lo[axis]..=hi[axis] {
+                let v = c[axis] as i64 + offset;
+                let (v, image) = match v {
+                    v if v < 0 && g.periodic[axis] => (v + n, 0),
+                    v if v >= n && g.periodic[axis] => (v - n, 2),
+                    v if v < 0 || v >= n => continue,
+                    v => (v, 1),
+                };
+                if !seen.iter().any(|s| s.0 == v as usize) {
+                    seen.push((v as usize, image));
+                }
+            }
+            per_axis.push(seen);
+        }
+        let exact = (0..3).all(|a| !g.periodic[a] || g.cells[a] >= 3);
+        let mut out = Vec::new();
+        for &(z, iz) in &per_axis[2] {
+            for &(y, iy) in &per_axis[1] {
+                for &(x, ix) in &per_axis[0] {
+                    let image = exact.then_some(ix + 3 * iy + 9 * iz);
+                    out.push((g.flat([x, y, z]), image));
+                }
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn block_scans_visit_occupied_cells_in_order_after_moves() {
+        use rand::{RngExt, SeedableRng};
+        // Periodic axes with 1, 2 and 3+ cells, walls, flat and tall rows.
+        let grids = [
+            ([6.0, 4.0, 3.0], [true, false, true]),
+            ([2.0, 3.0, 1.0], [true, true, true]),
+            ([9.0, 1.0, 5.0], [false, true, false]),
+            ([11.0, 7.0, 4.0], [true, true, true]),
+        ];
+        let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(5);
+        for (size, periodic) in grids {
+            let hi = DVec3::from_array(size);
+            let slots = 60;
+            let mut g = CellGrid::new(DVec3::ZERO, hi, 1.0, periodic, slots);
+            for round in 0..4 {
+                // Place, move and remove at random; some cells overflow.
+                for i in 0..slots {
+                    if round > 0 && rng.random_range(0..4) == 0 {
+                        g.remove(i);
+                        continue;
+                    }
+                    let p = DVec3::from_array(size.map(|l| rng.random_range(0.0..l)));
+                    g.place(i, if i % 7 == 0 { hi * 0.5 } else { p });
+                }
+                let occupied = g.occupied();
+                // The bits mark exactly the cells that hold a particle (a
+                // stale bit would only cost a visit; a missing one, pairs).
+                for (cell, &n) in g.len.iter().enumerate() {
+                    assert_eq!(g.occupancy_run(cell, 1) == 1, n > 0, "cell {cell}");
+                }
+                let d = g.cells;
+                for z in 0..d[2] {
+                    for y in 0..d[1] {
+                        for x in 0..d[0] {
+                            let c = [x, y, z];
+                            let mut scans = vec![([-1; 3], [1; 3])];
+                            for axis in 0..3 {
+                                for offset in [-1, 1] {
+                                    let (mut lo, mut hi) = ([-1; 3], [1; 3]);
+                                    (lo[axis], hi[axis]) = (offset, offset);
+                                    scans.push((lo, hi));
+                                }
+                            }
+                            for (lo, hi) in scans {
+                                let mut expected = Vec::new();
+                                for (cell, image) in block_reference(&g, c, lo, hi) {
+                                    for &(_, e) in occupied.iter().filter(|o| o.0 as usize == cell)
+                                    {
+                                        expected.push((e, image));
+                                    }
+                                }
+                                let mut got = Vec::new();
+                                g.for_each_in_block(c, lo, hi, |e, image| got.push((e, image)));
+                                assert_eq!(
+                                    got, expected,
+                                    "grid {size:?} cell {c:?} block {lo:?}..{hi:?}"
+                                );
+                            }
+                        }
+                    }
+                }
+            }
+        }
     }
 
     #[test]
