@@ -183,6 +183,22 @@ struct BlockRanges {
     exact: bool,
 }
 
+/// The rows along x of a block scan ([`CellGrid::block_rows`]).
+struct BlockRows {
+    /// The cells along x with the image component of their shift.
+    xs: [(usize, u32); 3],
+    x_count: usize,
+    /// Whether `xs` are consecutive cells (their bits are adjacent).
+    x_adjacent: bool,
+    /// Flat index of each row's x = 0 cell, and the image code of its
+    /// (y, z) shift.
+    base: [usize; 9],
+    image: [u32; 9],
+    count: usize,
+    /// See [`BlockRanges::exact`].
+    exact: bool,
+}
+
 /// Spare bytes after a [`CellGrid`]'s occupancy bits, so that a row of
 /// cells can be read as one unaligned 8-byte word.
 const OCCUPANCY_PAD: usize = 8;
@@ -543,46 +559,27 @@ impl CellGrid {
         hi: [i64; 3],
         mut f: impl FnMut(u32, Option<u32>),
     ) {
-        let BlockRanges {
-            ranges,
-            counts,
-            exact,
-        } = self.block_ranges(c, lo, hi);
-        if counts.contains(&0) {
-            return;
-        }
-        // Rows along x: flat index of x = 0 and image code of (y, z); bit
-        // 3·row + k of `occupied` is cell ranges[0][k] of the row.
-        let mut row_base = [0usize; 9];
-        let mut row_image = [0u32; 9];
+        let rows = self.block_rows(c, lo, hi);
+        let xs = &rows.xs[..rows.x_count];
+        // Bit 3·row + k: cell xs[k] of the row.
         let mut occupied = 0u32;
-        let xs = &ranges[0][..counts[0]];
-        // Unwrapped and in order, the row's cells are adjacent bits.
-        let adjacent = xs.windows(2).all(|w| w[1].0 == w[0].0 + 1);
-        let mut row = 0;
-        for &(z, iz) in &ranges[2][..counts[2]] {
-            for &(y, iy) in &ranges[1][..counts[1]] {
-                let base = self.flat([0, y, z]);
-                row_base[row] = base;
-                row_image[row] = 3 * iy + 9 * iz;
-                let bits = if adjacent {
-                    self.occupancy_run(base + xs[0].0, xs.len())
-                } else {
-                    xs.iter().enumerate().fold(0, |bits, (k, &(x, _))| {
-                        bits | (self.occupancy_run(base + x, 1) << k)
-                    })
-                };
-                occupied |= bits << (3 * row);
-                row += 1;
-            }
+        for (row, &base) in rows.base[..rows.count].iter().enumerate() {
+            let bits = if rows.x_adjacent {
+                self.occupancy_run(base + xs[0].0, xs.len())
+            } else {
+                xs.iter().enumerate().fold(0, |bits, (k, &(x, _))| {
+                    bits | (self.occupancy_run(base + x, 1) << k)
+                })
+            };
+            occupied |= bits << (3 * row);
         }
         while occupied != 0 {
             let bit = occupied.trailing_zeros() as usize;
             occupied &= occupied - 1;
             let (row, k) = (bit / 3, bit % 3);
             let (x, ix) = xs[k];
-            let cell = row_base[row] + x;
-            let image = exact.then_some(ix + row_image[row]);
+            let cell = rows.base[row] + x;
+            let image = rows.exact.then_some(ix + rows.image[row]);
             let n = self.len[cell] as usize;
             let base = cell * self.stride;
             for &e in &self.entries[base..base + n.min(self.stride)] {
@@ -596,6 +593,64 @@ impl CellGrid {
                 }
             }
         }
+    }
+
+    /// The rows along x of the block at offsets `lo..=hi` from cell `c`,
+    /// z outer and y inner. A cell away from every face (most of them) has
+    /// no wrap and no repeat, and its rows are plain offsets.
+    #[inline(always)]
+    fn block_rows(&self, c: [usize; 3], lo: [i64; 3], hi: [i64; 3]) -> BlockRows {
+        let d = self.cells;
+        let mut rows = BlockRows {
+            xs: [(0, 1); 3],
+            x_count: 0,
+            x_adjacent: true,
+            base: [0; 9],
+            image: [0; 9],
+            count: 0,
+            exact: true,
+        };
+        if (0..3).all(|a| c[a] >= 1 && c[a] + 1 < d[a]) {
+            for (k, offset) in (lo[0]..=hi[0]).enumerate() {
+                rows.xs[k] = ((c[0] as i64 + offset) as usize, 1);
+                rows.x_count += 1;
+            }
+            let stride_z = d[0] * d[1];
+            for dz in lo[2]..=hi[2] {
+                for dy in lo[1]..=hi[1] {
+                    let y = (c[1] as i64 + dy) as usize;
+                    let z = (c[2] as i64 + dz) as usize;
+                    rows.base[rows.count] = y * d[0] + z * stride_z;
+                    // Image (1, 1, 1): no shift.
+                    rows.image[rows.count] = 3 + 9;
+                    rows.count += 1;
+                }
+            }
+            return rows;
+        }
+        let BlockRanges {
+            ranges,
+            counts,
+            exact,
+        } = self.block_ranges(c, lo, hi);
+        if counts.contains(&0) {
+            return rows;
+        }
+        rows.xs = ranges[0];
+        rows.x_count = counts[0];
+        rows.exact = exact;
+        // Unwrapped and in order, the row's cells are adjacent bits.
+        rows.x_adjacent = ranges[0][..counts[0]]
+            .windows(2)
+            .all(|w| w[1].0 == w[0].0 + 1);
+        for &(z, iz) in &ranges[2][..counts[2]] {
+            for &(y, iy) in &ranges[1][..counts[1]] {
+                rows.base[rows.count] = self.flat([0, y, z]);
+                rows.image[rows.count] = 3 * iy + 9 * iz;
+                rows.count += 1;
+            }
+        }
+        rows
     }
 
     /// The occupancy bits of `len` (at most 3) cells from flat index
