@@ -9,8 +9,6 @@
 //! `|c_a - c_b| < R_a + R_b + 2δ`; the lists hold exactly those pairs and are
 //! kept symmetric, so no collision can be missed whatever the speeds.
 
-use std::collections::HashMap;
-
 use glam::DVec3;
 
 use crate::prefetch::prefetch;
@@ -153,23 +151,12 @@ pub struct CellEntry {
 }
 
 /// Most cells a [`CellGrid`] may have: 2²² (about 4.2 million: 17 MB of
-/// counts and at most 67 MB of entries). Beyond, the cells are widened
-/// uniformly; wider cells stay correct, only slower.
+/// cell heads). Beyond, the cells are widened uniformly; wider cells stay
+/// correct, only slower.
 pub const MAX_CELLS: usize = 1 << 22;
 
 /// Most cells along one axis (an older, per-axis form of the same cap).
 const MAX_CELLS_PER_AXIS: f64 = 1024.0;
-
-/// Entries the cells of a [`CellGrid`] hold in place (cells × stride) may
-/// grow to `max(GRID_ENTRY_BUDGET, GRID_ENTRIES_PER_SLOT × slots)`; past
-/// that, a full cell keeps its extra entries in a per-cell overflow list
-/// instead of widening every cell. This bounds the grid's memory by
-/// O(cells + particles) however the particles cluster (a dense bed in a
-/// grid of cells wider than needed would otherwise grow the common stride
-/// to the bed's particles per cell, for every cell).
-pub const GRID_ENTRY_BUDGET: usize = 1 << 22;
-/// See [`GRID_ENTRY_BUDGET`].
-pub const GRID_ENTRIES_PER_SLOT: usize = 16;
 
 /// The cells of a block scan ([`CellGrid::for_each_in_block`]).
 struct BlockRanges {
@@ -204,47 +191,51 @@ struct BlockRows {
 const OCCUPANCY_PAD: usize = 8;
 
 /// Heap memory (bytes) of a [`CellGrid`] with `cells` cells and `slots`
-/// particle slots, at most (for memory estimates before a run).
+/// particle slots.
 pub fn grid_bytes_bound(cells: usize, slots: usize) -> usize {
-    let budget = GRID_ENTRY_BUDGET.max(GRID_ENTRIES_PER_SLOT.saturating_mul(slots));
-    let entry = std::mem::size_of::<u32>();
     cells.saturating_mul(std::mem::size_of::<u32>())
         + cells.div_ceil(8)
         + OCCUPANCY_PAD
-        + budget.min(cells.saturating_mul(4)).saturating_mul(entry)
-        + slots.saturating_mul(entry + std::mem::size_of::<(u32, u32)>())
+        + slots.saturating_mul(std::mem::size_of::<Link>())
 }
 
-/// Uniform grid of cells holding particles by shell centre. Each cell is a
-/// fixed-stride block of particle slots (u32) in one flat array (the stride grows
-/// when a cell overflows, within [`GRID_ENTRY_BUDGET`]; beyond it the
-/// cell's extra entries go to an overflow list); `position[i]` locates
-/// particle i for O(1) moves.
+/// Uniform grid of cells holding particles by shell centre: each cell is a
+/// doubly linked list of particle slots, from its head. Memory is 4 bytes
+/// a cell and 12 a slot however the particles cluster, and a move is O(1).
 #[derive(Clone, Debug)]
 pub struct CellGrid {
     lo: DVec3,
     cells: [usize; 3],
     inverse_width: DVec3,
     periodic: [bool; 3],
-    stride: usize,
-    len: Vec<u32>,
+    /// First slot of each cell's list (`NONE` when empty).
+    head: Vec<u32>,
     /// One bit per cell, set while the cell holds a particle, in bytes
     /// with [`OCCUPANCY_PAD`] spare bytes at the end for unaligned reads:
     /// a search tests a row of 3 cells in one read and visits only the
     /// occupied ones (at φ = 0.1 four cells in five are empty), without
-    /// loading their counts.
+    /// loading their heads.
     occupancy: Vec<u8>,
-    /// Slots only (4 bytes an entry): a search reads the particles'
-    /// centres from the caller's own arrays, which the engine keeps in
-    /// cell order.
-    entries: Vec<u32>,
-    /// Entries of cell `c` past `stride`, in order (only once the stride
-    /// cannot grow within the budget).
-    overflow: HashMap<u32, Vec<u32>>,
-    /// (cell, offset in cell) of each particle, `NONE` cell when absent.
-    position: Vec<(u32, u32)>,
-    /// [`GRID_ENTRY_BUDGET`] (smaller in tests of the overflow lists).
-    budget_floor: usize,
+    /// Per slot, the next slot of its cell's list (`NONE` at the end): all
+    /// a scan follows (4 bytes a slot, so that it stays cached).
+    next: Vec<u32>,
+    /// Per slot, its cell (`NONE` when absent) and the previous slot of
+    /// its list (`NONE` at the head): what a removal needs.
+    links: Vec<Link>,
+}
+
+/// A slot's cell and its predecessor in the cell's list ([`CellGrid`]).
+#[derive(Clone, Copy, Debug)]
+struct Link {
+    cell: u32,
+    prev: u32,
+}
+
+impl Link {
+    const ABSENT: Link = Link {
+        cell: NONE,
+        prev: NONE,
+    };
 }
 
 impl CellGrid {
@@ -299,60 +290,43 @@ impl CellGrid {
             };
         }
         let total = cells[0] * cells[1] * cells[2];
-        let mut grid = CellGrid {
+        CellGrid {
             lo,
             cells,
             inverse_width,
             periodic,
-            stride: 1,
-            len: vec![0; total],
+            head: vec![NONE; total],
             occupancy: vec![0; total.div_ceil(8) + OCCUPANCY_PAD],
-            entries: Vec::new(),
-            overflow: HashMap::new(),
-            position: vec![(NONE, 0); slots],
-            budget_floor: GRID_ENTRY_BUDGET,
-        };
-        grid.stride = if total * 4 <= grid.entry_budget() {
-            4
-        } else {
-            1
-        };
-        grid.entries = vec![0; total * grid.stride];
-        grid
-    }
-
-    /// Inline entries the grid may hold (see [`GRID_ENTRY_BUDGET`]).
-    fn entry_budget(&self) -> usize {
-        self.budget_floor
-            .max(GRID_ENTRIES_PER_SLOT.saturating_mul(self.position.len()))
+            next: vec![NONE; slots],
+            links: vec![Link::ABSENT; slots],
+        }
     }
 
     pub fn resize(&mut self, slots: usize) {
-        self.position.resize(slots, (NONE, 0));
+        self.next.resize(slots, NONE);
+        self.links.resize(slots, Link::ABSENT);
     }
 
-    /// Empties the grid and sizes it for `slots` slots, in place (a copy
-    /// would hold the old and new entries at once).
+    /// Empties the grid and sizes it for `slots` slots, in place.
     pub fn empty(&mut self, slots: usize) {
-        self.len.fill(0);
+        self.head.fill(NONE);
         self.occupancy.fill(0);
-        self.overflow.clear();
-        self.position.clear();
-        self.position.resize(slots, (NONE, 0));
+        self.next.clear();
+        self.next.resize(slots, NONE);
+        self.links.clear();
+        self.links.resize(slots, Link::ABSENT);
     }
 
     /// Every entry, cell by cell (flat cell index), each cell's slots in
-    /// their order: what a restart file keeps ([`CellGrid::refilled`]).
+    /// the order a scan visits them: what a restart file keeps
+    /// ([`CellGrid::refill`]).
     pub fn occupied(&self) -> Vec<(u32, u32)> {
         let mut out = Vec::new();
-        for (cell, &n) in self.len.iter().enumerate() {
-            for k in 0..n as usize {
-                let e = if k < self.stride {
-                    self.entries[cell * self.stride + k]
-                } else {
-                    self.overflow[&(cell as u32)][k - self.stride]
-                };
-                out.push((cell as u32, e));
+        for (cell, &first) in self.head.iter().enumerate() {
+            let mut j = first;
+            while j != NONE {
+                out.push((cell as u32, j));
+                j = self.next[j as usize];
             }
         }
         out
@@ -362,11 +336,9 @@ impl CellGrid {
     /// ([`CellGrid::occupied`]), each cell's slots in the same order.
     pub fn refill(&mut self, slots: usize, occupied: &[(u32, u32)]) {
         self.empty(slots);
-        let d = self.cells;
-        for &(cell, index) in occupied {
-            let c = cell as usize;
-            let coords = [c % d[0], (c / d[0]) % d[1], c / (d[0] * d[1])];
-            self.place_in(index as usize, coords);
+        // Each insertion goes to the head of its cell's list.
+        for &(cell, index) in occupied.iter().rev() {
+            self.insert(index as usize, cell as usize);
         }
     }
 
@@ -421,93 +393,53 @@ impl CellGrid {
     /// a face may sit a round-off outside it).
     pub fn place_in(&mut self, i: usize, c: [usize; 3]) {
         self.remove(i);
-        let cell = self.flat(c);
-        let k = self.len[cell] as usize;
-        if k == self.stride && self.len.len() * self.stride * 2 <= self.entry_budget() {
-            self.grow();
-        }
-        let entry = i as u32;
-        if k < self.stride {
-            self.entries[cell * self.stride + k] = entry;
-        } else {
-            self.overflow.entry(cell as u32).or_default().push(entry);
-        }
-        self.len[cell] += 1;
-        self.occupancy[cell / 8] |= 1 << (cell % 8);
-        self.position[i] = (cell as u32, k as u32);
+        self.insert(i, self.flat(c));
     }
 
-    /// Entry `k` of `cell` (in place or in the overflow list).
-    fn entry_mut(&mut self, cell: usize, k: usize) -> &mut u32 {
-        if k < self.stride {
-            &mut self.entries[cell * self.stride + k]
-        } else {
-            let list = self
-                .overflow
-                .get_mut(&(cell as u32))
-                .expect("a cell past its stride has an overflow list");
-            &mut list[k - self.stride]
+    /// Puts absent particle `i` at the head of flat cell `cell`'s list.
+    fn insert(&mut self, i: usize, cell: usize) {
+        let first = self.head[cell];
+        if first != NONE {
+            self.links[first as usize].prev = i as u32;
         }
+        self.next[i] = first;
+        self.links[i] = Link {
+            cell: cell as u32,
+            prev: NONE,
+        };
+        self.head[cell] = i as u32;
+        self.occupancy[cell / 8] |= 1 << (cell % 8);
     }
 
     /// Takes particle `i` out of its cell, if it is in one.
     pub fn remove(&mut self, i: usize) {
-        let (cell, k) = self.position[i];
+        let Link { cell, prev } = self.links[i];
         if cell == NONE {
             return;
         }
-        let (cell, k) = (cell as usize, k as usize);
-        let last = self.len[cell] as usize - 1;
-        if k != last {
-            let moved = *self.entry_mut(cell, last);
-            *self.entry_mut(cell, k) = moved;
-            self.position[moved as usize].1 = k as u32;
+        let cell = cell as usize;
+        let next = self.next[i];
+        if prev == NONE {
+            self.head[cell] = next;
+        } else {
+            self.next[prev as usize] = next;
         }
-        if last >= self.stride {
-            let key = cell as u32;
-            if let Some(list) = self.overflow.get_mut(&key) {
-                list.pop();
-                if list.is_empty() {
-                    self.overflow.remove(&key);
-                }
-            }
+        if next != NONE {
+            self.links[next as usize].prev = prev;
         }
-        self.len[cell] -= 1;
-        if self.len[cell] == 0 {
+        if self.head[cell] == NONE {
             self.occupancy[cell / 8] &= !(1 << (cell % 8));
         }
-        self.position[i] = (NONE, 0);
-    }
-
-    /// Doubles the stride; overflow entries move into the new room.
-    fn grow(&mut self) {
-        let old = self.stride;
-        let new_stride = old * 2;
-        let mut entries = vec![0; self.len.len() * new_stride];
-        for (cell, &n) in self.len.iter().enumerate() {
-            let n = (n as usize).min(old);
-            entries[cell * new_stride..cell * new_stride + n]
-                .copy_from_slice(&self.entries[cell * old..cell * old + n]);
-        }
-        for (&cell, list) in self.overflow.iter_mut() {
-            let base = cell as usize * new_stride + old;
-            let take = list.len().min(new_stride - old);
-            for (j, e) in list.drain(..take).enumerate() {
-                entries[base + j] = e;
-            }
-        }
-        self.overflow.retain(|_, list| !list.is_empty());
-        self.entries = entries;
-        self.stride = new_stride;
+        self.next[i] = NONE;
+        self.links[i] = Link::ABSENT;
     }
 
     /// Heap memory of the grid (bytes).
     pub fn heap_bytes(&self) -> usize {
-        let overflow: usize = self.overflow.values().map(Vec::capacity).sum();
-        (self.entries.len() + overflow) * std::mem::size_of::<u32>()
-            + self.len.len() * std::mem::size_of::<u32>()
+        self.head.len() * std::mem::size_of::<u32>()
             + self.occupancy.len()
-            + self.position.len() * std::mem::size_of::<(u32, u32)>()
+            + self.next.len() * std::mem::size_of::<u32>()
+            + self.links.len() * std::mem::size_of::<Link>()
     }
 
     /// Calls `f(slot, image)` once for every particle in the cell of `p` and
@@ -580,17 +512,10 @@ impl CellGrid {
             let (x, ix) = xs[k];
             let cell = rows.base[row] + x;
             let image = rows.exact.then_some(ix + rows.image[row]);
-            let n = self.len[cell] as usize;
-            let base = cell * self.stride;
-            for &e in &self.entries[base..base + n.min(self.stride)] {
-                f(e, image);
-            }
-            if n > self.stride
-                && let Some(list) = self.overflow.get(&(cell as u32))
-            {
-                for &e in list {
-                    f(e, image);
-                }
+            let mut j = self.head[cell];
+            while j != NONE {
+                f(j, image);
+                j = self.next[j as usize];
             }
         }
     }
@@ -725,49 +650,6 @@ mod tests {
         assert!(l.list(1).iter().all(|&e| unpack(e).0 != 3));
     }
 
-    /// With the stride budget spent, a full cell keeps its extra entries in
-    /// an overflow list: every entry is still found exactly once, removals
-    /// keep the positions consistent, and the grid's memory stays bounded.
-    #[test]
-    fn full_cells_overflow_beyond_the_entry_budget() {
-        let lo = DVec3::ZERO;
-        let hi = DVec3::new(4.0, 4.0, 4.0);
-        let mut g = CellGrid::new(lo, hi, 1.0, [false; 3], 40);
-        // 64 cells; a floor of 64 x 8 entries lets the stride grow to 8 only.
-        g.budget_floor = 64 * 8;
-        let inside = DVec3::new(1.5, 1.5, 1.5);
-        for i in 0..30 {
-            g.place(i, inside + DVec3::splat(0.01 * i as f64));
-        }
-        assert_eq!(g.stride, 8, "the stride grows within the budget only");
-        let near = |g: &CellGrid| {
-            let mut seen = Vec::new();
-            g.for_each_near(inside, |e, _| seen.push(e));
-            seen.sort();
-            seen
-        };
-        assert_eq!(near(&g), (0..30).collect::<Vec<u32>>());
-        for i in [0, 7, 8, 29, 15] {
-            g.remove(i);
-        }
-        let expected: Vec<u32> = (0..30).filter(|i| ![0, 7, 8, 29, 15].contains(i)).collect();
-        assert_eq!(near(&g), expected);
-        // Every particle's recorded position still points at itself.
-        for &i in &expected {
-            let (cell, k) = g.position[i as usize];
-            assert_eq!(*g.entry_mut(cell as usize, k as usize), i);
-        }
-        // Moving particles elsewhere empties the overflow list.
-        for &i in &expected {
-            g.place(
-                i as usize,
-                DVec3::new(3.5, 0.5, 0.5 + 0.1 * (i % 30) as f64),
-            );
-        }
-        assert!(g.overflow.is_empty() || g.overflow.values().all(|l| !l.is_empty()));
-        assert!(g.heap_bytes() < 64 * 8 * 4 + 40 * 8 + 40 * 4 + 64 * 4 + 4096);
-    }
-
     #[test]
     fn grid_cells_are_capped_in_total() {
         let size = DVec3::new(1.0, 2.0, 1.0);
@@ -855,9 +737,22 @@ mod tests {
                 let occupied = g.occupied();
                 // The bits mark exactly the cells that hold a particle (a
                 // stale bit would only cost a visit; a missing one, pairs).
-                for (cell, &n) in g.len.iter().enumerate() {
-                    assert_eq!(g.occupancy_run(cell, 1) == 1, n > 0, "cell {cell}");
+                for (cell, &first) in g.head.iter().enumerate() {
+                    assert_eq!(g.occupancy_run(cell, 1) == 1, first != NONE, "cell {cell}");
                 }
+                // Each slot's links agree with the lists a scan follows.
+                let mut prev = (NONE, NONE);
+                for &(cell, j) in &occupied {
+                    let link = g.links[j as usize];
+                    assert_eq!(link.cell, cell);
+                    let expected_prev = if prev.0 == cell { prev.1 } else { NONE };
+                    assert_eq!(link.prev, expected_prev, "slot {j}");
+                    prev = (cell, j);
+                }
+                // A restart's refill gives back the same lists, in order.
+                let mut copy = g.clone();
+                copy.refill(slots, &occupied);
+                assert_eq!(copy.occupied(), occupied);
                 let d = g.cells;
                 for z in 0..d[2] {
                     for y in 0..d[1] {
