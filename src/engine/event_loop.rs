@@ -70,6 +70,8 @@ impl<Q: EventQueue> Engine<Q> {
                 break;
             }
             self.now = t;
+            self.queue
+                .for_each_likely_next(|k| self.prefetch_particle(k as usize));
             self.process(i as usize);
             if stop_on_soft && !self.turned_soft.is_empty() {
                 return;
@@ -84,6 +86,20 @@ impl<Q: EventQueue> Engine<Q> {
             }
         }
         self.now = end;
+    }
+
+    /// Requests the first data particle i's next event reads: its event,
+    /// kinematics, cell and kept pair, last collision and wall faces.
+    #[inline(always)]
+    fn prefetch_particle(&self, i: usize) {
+        prefetch(&self.scheduled[i]);
+        prefetch(&self.kin[i]);
+        prefetch(&self.last_collision[i]);
+        prefetch(&self.face_mask[i]);
+        if self.config.neighbours == NeighbourSearch::Cells {
+            prefetch(&self.cell_of[i]);
+            prefetch(&self.pair_candidate[i]);
+        }
     }
 
     /// Why the last [`Engine::advance`] stopped early, if it did.

@@ -34,6 +34,7 @@ use std::collections::HashMap;
 
 use super::EventQueue;
 use super::indexed_heap::{self, Entry};
+use crate::prefetch::prefetch;
 
 /// Target mean number of events per bucket.
 const EVENTS_PER_BUCKET: f64 = 2.0;
@@ -494,6 +495,28 @@ impl EventQueue for CalendarQueue {
         self.heap.first().map(|e| (e.t, e.i))
     }
 
+    /// The earliest of the current heap's second rank (the root's
+    /// children) or, with the root alone, the next ring bucket's events.
+    #[inline]
+    fn for_each_likely_next(&self, mut f: impl FnMut(u32)) {
+        if let Some(second) = self
+            .heap
+            .iter()
+            .skip(1)
+            .take(indexed_heap::ARITY)
+            .reduce(|a, b| if b.before(*a) { b } else { a })
+        {
+            prefetch(&self.slots[second.i as usize]);
+            f(second.i);
+        } else if !self.lines.is_empty() {
+            let line = &self.lines[((self.cur + 1) & (self.nb() - 1)) as usize];
+            for &i in &line.idx[..line.len as usize] {
+                prefetch(&self.slots[i as usize]);
+                f(i);
+            }
+        }
+    }
+
     fn len(&self) -> usize {
         self.len
     }
@@ -545,6 +568,33 @@ mod tests {
     use super::*;
     use rand::{RngExt, SeedableRng};
     use rand_xoshiro::Xoshiro256PlusPlus;
+
+    /// The prefetch hint names the event that follows the minimum in most
+    /// hold steps (it is a hint: the order itself is tested elsewhere).
+    #[test]
+    fn likely_next_is_usually_the_next_event() {
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(3);
+        let n = 2000;
+        let mut q = CalendarQueue::with_capacity(n as usize);
+        for i in 0..n {
+            q.set(i, rng.random::<f64>());
+        }
+        let (mut named, steps) = (0, 20000);
+        for _ in 0..steps {
+            let (t, i) = q.peek_min().expect("every particle has an event");
+            let mut hinted = Vec::new();
+            q.for_each_likely_next(|k| hinted.push(k));
+            q.set(i, t + 1.0 + rng.random::<f64>());
+            let (_, next) = q.peek_min().expect("every particle has an event");
+            named += usize::from(hinted.contains(&next));
+        }
+        // 98 % here (seed 3); a hint that named the next event in under
+        // half the steps would save little.
+        assert!(
+            named * 2 > steps,
+            "named the next event {named} times in {steps}"
+        );
+    }
 
     /// Runs `steps` hold steps with rescheduling delays `Exp(mean)`.
     fn hold(q: &mut CalendarQueue, rng: &mut Xoshiro256PlusPlus, n: u32, mean: f64, steps: usize) {

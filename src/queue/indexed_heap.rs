@@ -10,7 +10,7 @@ use super::EventQueue;
 /// Children per heap node: 4 measured a little faster than 2 or 8 on the
 /// hold workload at n = 10^5 (shallower tree than binary, children adjacent).
 /// Branch-free child selection and bottom-up sifting measured slower.
-const ARITY: usize = 4;
+pub(crate) const ARITY: usize = 4;
 
 /// `pos` value of a particle that is not in the heap.
 const ABSENT: u32 = u32::MAX;

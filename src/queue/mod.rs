@@ -17,6 +17,16 @@ pub trait EventQueue: Sync {
     fn remove(&mut self, i: u32);
     /// The earliest `(time, index)`, ties broken by the smaller index.
     fn peek_min(&mut self) -> Option<(f64, u32)>;
+    /// Calls `f` with particles whose events probably come right after the
+    /// minimum, so that the caller can request their data early. A hint
+    /// only: it never changes the order. None by default.
+    #[inline]
+    fn for_each_likely_next(&self, f: impl FnMut(u32))
+    where
+        Self: Sized,
+    {
+        let _ = f;
+    }
     /// Number of particles with an event.
     fn len(&self) -> usize;
     fn is_empty(&self) -> bool {
