@@ -434,6 +434,13 @@ impl CellGrid {
         self.links[i] = Link::ABSENT;
     }
 
+    /// Requests slot i's links (what moving it reads first).
+    #[inline(always)]
+    pub fn prefetch_slot(&self, i: usize) {
+        prefetch(&self.links[i]);
+        prefetch(&self.next[i]);
+    }
+
     /// Heap memory of the grid (bytes).
     pub fn heap_bytes(&self) -> usize {
         self.head.len() * std::mem::size_of::<u32>()

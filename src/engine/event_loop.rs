@@ -99,6 +99,7 @@ impl<Q: EventQueue> Engine<Q> {
         if self.config.neighbours == NeighbourSearch::Cells {
             prefetch(&self.cell_of[i]);
             prefetch(&self.pair_candidate[i]);
+            self.cells.prefetch_slot(i);
         }
     }
 
