@@ -45,7 +45,7 @@ CHUNK_BYTES = 4096
 # kind: (magic, name in messages, version read, last version without the container)
 SNAPSHOT = (b"EDPMSNAP", "snapshot", 3, 2)
 CHECKPOINT = (b"EDPMCKPT", "checkpoint", 2, 1)
-RESTART = (b"EDPMRST\0", "restart file", 1, 0)
+RESTART = (b"EDPMRST\0", "restart file", 2, 0)
 KINDS = {SNAPSHOT[0]: SNAPSHOT, CHECKPOINT[0]: CHECKPOINT, RESTART[0]: RESTART}
 
 

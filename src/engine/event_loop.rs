@@ -209,15 +209,22 @@ impl<Q: EventQueue> Engine<Q> {
         for t in &mut self.last_collision {
             *t -= shift;
         }
+        for c in &mut self.pair_candidate {
+            c.time -= shift;
+        }
         self.needs_prediction = true;
         self.retry_pending_reinsertions();
     }
 
-    /// Re-predicts every particle from scratch: the predictions (pure
-    /// functions of the state) in parallel, then queued in slot order, so
-    /// that the queue is the same whatever the thread count.
+    /// Re-predicts every particle: the predictions (pure functions of the
+    /// state) in parallel, then queued in slot order, so that the queue is
+    /// the same whatever the thread count. After uniform kicks only, cells
+    /// mode keeps each particle's pair ([`Engine::prediction_after_uniform_kick`]).
     #[inline]
     pub(super) fn predict_all(&mut self) {
+        let keep_pairs = self.kicks_uniform
+            && self.config.neighbours == NeighbourSearch::Cells
+            && self.config.model == ContactModel::Hard;
         self.queue.clear();
         // In chunks of slots: a buffer for every particle would add 40
         // bytes per particle to the peak memory. Predictions read nothing
@@ -229,7 +236,15 @@ impl<Q: EventQueue> Engine<Q> {
             (start..slots.min(start + PREDICTION_CHUNK))
                 .into_par_iter()
                 .with_min_len(PREDICTIONS_PER_TASK)
-                .map(|i| engine.active[i].then(|| engine.prediction(i)))
+                .map(|i| {
+                    engine.active[i].then(|| {
+                        if keep_pairs {
+                            engine.prediction_after_uniform_kick(i)
+                        } else {
+                            engine.prediction(i)
+                        }
+                    })
+                })
                 .collect_into_vec(&mut predictions);
             for (k, p) in predictions.iter().enumerate() {
                 if let Some(p) = p {
@@ -238,6 +253,48 @@ impl<Q: EventQueue> Engine<Q> {
             }
         }
         self.needs_prediction = false;
+        self.kicks_uniform = true;
+    }
+
+    /// Cells mode, after kicks that changed every velocity alike: relative
+    /// motions are unchanged, so the pair kept at particle i's last
+    /// prediction (Eq. 45 depends on relative position and velocity only)
+    /// is still its earliest, and only its boundary event is new. The same
+    /// holds for a particle that had no pair. A kept pair whose partner has
+    /// had an event since, or a slot never searched, gets a full prediction.
+    /// Not bit-identical to a full prediction: the kept time was computed
+    /// from the states before the kicks (round-off).
+    #[inline]
+    fn prediction_after_uniform_kick(&self, i: usize) -> Prediction {
+        let kept = self.pair_candidate[i];
+        // `!(kept.time >= now)`: also a slot never searched (NaN).
+        if !(kept.time >= self.now)
+            || (kept.time.is_finite()
+                && self.counter[neighbours::unpack(kept.entry).0 as usize] != kept.partner_count)
+        {
+            return self.prediction(i);
+        }
+        let ki = self.kin_now(i);
+        let (best, event) = self.boundary_event(i, &ki);
+        let pair_delay = kept.time - self.now;
+        let (delay, event) = if kept.time.is_finite() && pair_delay < best {
+            (
+                pair_delay,
+                Scheduled {
+                    kind: EventKind::Pair,
+                    face: 0,
+                    partner: kept.entry,
+                    partner_count: kept.partner_count,
+                },
+            )
+        } else {
+            (best, event)
+        };
+        Prediction {
+            delay,
+            event,
+            candidate: kept,
+        }
     }
 
     /// Finds particle i's earliest event (Eq. 46) and queues it. The

@@ -275,6 +275,11 @@ pub struct Engine<Q: EventQueue> {
     /// flow steps add up to the exact end time.
     time_origin_error: f64,
     needs_prediction: bool,
+    /// Whether every velocity change since the last [`Engine::predict_all`]
+    /// outside events was the same for all particles ([`Engine::kick_all`]):
+    /// then relative motions, and so the kept pairs of cells mode, still
+    /// hold.
+    kicks_uniform: bool,
     /// Particles that left through a reinserting outlet but found no room yet.
     pending_reinsert: Vec<NewParticle>,
 
@@ -433,6 +438,7 @@ impl<Q: EventQueue> Engine<Q> {
             time_origin: 0.0,
             time_origin_error: 0.0,
             needs_prediction: true,
+            kicks_uniform: false,
             pending_reinsert: Vec::new(),
             counters: Counters::default(),
             records: Vec::new(),
@@ -552,7 +558,7 @@ impl<Q: EventQueue> Engine<Q> {
             self.face_mask[s] = 0;
             if self.uses_cells() {
                 self.cell_of[s] = [0; 3];
-                self.pair_candidate[s] = PairCandidate::NONE;
+                self.pair_candidate[s] = PairCandidate::UNPREDICTED;
             } else {
                 self.shell_centres[s] = p.pos;
             }
@@ -573,7 +579,7 @@ impl<Q: EventQueue> Engine<Q> {
         self.face_mask.push(0);
         if self.uses_cells() {
             self.cell_of.push([0; 3]);
-            self.pair_candidate.push(PairCandidate::NONE);
+            self.pair_candidate.push(PairCandidate::UNPREDICTED);
         } else {
             self.shell_centres.push(p.pos);
         }

@@ -71,6 +71,11 @@ pub struct EngineState {
     pub counters: Counters,
     pub collapse_reports: Vec<CollapseReport>,
     pub soft_stats: SoftStats,
+    /// Cells mode, when only uniform kicks followed the last prediction:
+    /// each slot's kept pair (engine clock of contact (s), packed partner
+    /// entry, partner's event counter), from which the next prediction
+    /// starts ([`Engine::predict_all`]).
+    pub kept_pairs: Option<Vec<(f64, u32, u32)>>,
 }
 
 impl EngineState {
@@ -160,6 +165,12 @@ impl<Q: EventQueue> Engine<Q> {
             counters: self.counters,
             collapse_reports: self.collapse_reports.clone(),
             soft_stats: self.soft_stats,
+            kept_pairs: (self.uses_cells() && self.kicks_uniform).then(|| {
+                self.pair_candidate
+                    .iter()
+                    .map(|c| (c.time, c.entry, c.partner_count))
+                    .collect()
+            }),
         })
     }
 
@@ -191,6 +202,18 @@ impl<Q: EventQueue> Engine<Q> {
                 .any(|(c, e)| u64::from(*c) >= cells || e.index as usize >= n)
         {
             return Err("neighbour lists or cells that do not fit the particle table or this scenario's grid".into());
+        }
+        if let Some(kept) = &state.kept_pairs
+            && (!self.uses_cells()
+                || kept.len() != n
+                || kept
+                    .iter()
+                    .any(|&(_, entry, _)| crate::neighbours::unpack(entry).0 as usize >= n))
+        {
+            return Err(
+                "kept pairs that do not fit the particle table or this scenario's neighbour search"
+                    .into(),
+            );
         }
         if state.free_slots.iter().any(|&f| f as usize >= n)
             || state
@@ -247,10 +270,21 @@ impl<Q: EventQueue> Engine<Q> {
                 .iter()
                 .map(|s| s.cell.map(|c| c as u32))
                 .collect();
-            // Restored at a flow-step end: every particle is re-predicted
-            // in full, which refills the kept pairs of cells mode.
-            self.pair_candidate = vec![PairCandidate::NONE; n];
+            // A state written after uniform kicks only keeps its pairs, so
+            // that the restarted run re-predicts as the original did.
+            self.pair_candidate = match &state.kept_pairs {
+                Some(kept) => kept
+                    .iter()
+                    .map(|&(time, entry, partner_count)| PairCandidate {
+                        time,
+                        entry,
+                        partner_count,
+                    })
+                    .collect(),
+                None => vec![PairCandidate::UNPREDICTED; n],
+            };
         }
+        self.kicks_uniform = state.kept_pairs.is_some();
         self.last_collision = state.slots.iter().map(|s| s.last_collision).collect();
         self.last_partner = state.slots.iter().map(|s| s.last_partner).collect();
         self.step_collisions = vec![0; n];

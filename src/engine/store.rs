@@ -223,7 +223,7 @@ impl<Q: EventQueue> Engine<Q> {
         self.face_mask = vec![0; n];
         if self.uses_cells() {
             self.cell_of = vec![[0; 3]; n];
-            self.pair_candidate = vec![PairCandidate::NONE; n];
+            self.pair_candidate = vec![PairCandidate::UNPREDICTED; n];
         }
         self.free_slots.clear();
         self.queue.clear();
@@ -268,6 +268,7 @@ impl<Q: EventQueue> Engine<Q> {
             }
         }
         self.needs_prediction = true;
+        self.kicks_uniform = false;
     }
 
     #[inline]
@@ -365,8 +366,16 @@ pub(super) struct PairCandidate {
 }
 
 impl PairCandidate {
+    /// The search found no approaching pair.
     pub(super) const NONE: PairCandidate = PairCandidate {
         time: f64::INFINITY,
+        entry: 0,
+        partner_count: 0,
+    };
+    /// No search yet (a new or renumbered slot): only a full prediction
+    /// may follow.
+    pub(super) const UNPREDICTED: PairCandidate = PairCandidate {
+        time: f64::NAN,
         entry: 0,
         partner_count: 0,
     };
