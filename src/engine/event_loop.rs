@@ -267,8 +267,8 @@ impl<Q: EventQueue> Engine<Q> {
     #[inline]
     fn prediction_after_uniform_kick(&self, i: usize) -> Prediction {
         let kept = self.pair_candidate[i];
-        // `!(kept.time >= now)`: also a slot never searched (NaN).
-        if !(kept.time >= self.now)
+        if kept.time.is_nan()
+            || kept.time < self.now
             || (kept.time.is_finite()
                 && self.counter[neighbours::unpack(kept.entry).0 as usize] != kept.partner_count)
         {
