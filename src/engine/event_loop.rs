@@ -89,7 +89,8 @@ impl<Q: EventQueue> Engine<Q> {
     }
 
     /// Requests the first data particle i's next event reads: its event,
-    /// kinematics, cell and kept pair, last collision and wall faces.
+    /// kinematics, last collision and wall faces, and its cell and kept
+    /// pair (cells mode) or its shell and neighbour list (lists mode).
     #[inline(always)]
     fn prefetch_particle(&self, i: usize) {
         prefetch(&self.scheduled[i]);
@@ -100,6 +101,9 @@ impl<Q: EventQueue> Engine<Q> {
             prefetch(&self.cell_of[i]);
             prefetch(&self.pair_candidate[i]);
             self.cells.prefetch_slot(i);
+        } else {
+            prefetch(&self.shell_centres[i]);
+            self.lists.prefetch(i);
         }
     }
 
