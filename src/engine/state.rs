@@ -78,6 +78,23 @@ pub struct EngineState {
     pub kept_pairs: Option<Vec<(f64, u32, u32)>>,
 }
 
+/// Whether a packed neighbour entry names a slot below `n` and one of the
+/// 27 periodic images.
+fn entry_fits(entry: u32, n: usize) -> bool {
+    let (slot, image) = crate::neighbours::unpack(entry);
+    (slot as usize) < n && image < 27
+}
+
+/// Whether no slot below `n` appears twice in `slots`.
+fn each_slot_once(slots: impl Iterator<Item = u32>, n: usize) -> bool {
+    let mut seen = vec![false; n];
+    slots.into_iter().all(|s| {
+        let first = !seen[s as usize];
+        seen[s as usize] = true;
+        first
+    })
+}
+
 impl EngineState {
     /// Particles in the state (active slots).
     pub fn particles(&self) -> usize {
@@ -191,24 +208,19 @@ impl<Q: EventQueue> Engine<Q> {
         let cells = (dims[0] * dims[1] * dims[2]) as u64;
         if state.lists.len() != n
             || (self.uses_cells() && state.lists.iter().any(|l| !l.is_empty()))
-            || state
-                .lists
-                .iter()
-                .flatten()
-                .any(|&e| crate::neighbours::unpack(e).0 as usize >= n)
+            || state.lists.iter().flatten().any(|&e| !entry_fits(e, n))
             || state
                 .cells
                 .iter()
                 .any(|(c, e)| u64::from(*c) >= cells || e.index as usize >= n)
+            || !each_slot_once(state.cells.iter().map(|(_, e)| e.index), n)
         {
             return Err("neighbour lists or cells that do not fit the particle table or this scenario's grid".into());
         }
         if let Some(kept) = &state.kept_pairs
             && (!self.uses_cells()
                 || kept.len() != n
-                || kept
-                    .iter()
-                    .any(|&(_, entry, _)| crate::neighbours::unpack(entry).0 as usize >= n))
+                || kept.iter().any(|&(_, entry, _)| !entry_fits(entry, n)))
         {
             return Err(
                 "kept pairs that do not fit the particle table or this scenario's neighbour search"
@@ -318,5 +330,99 @@ impl<Q: EventQueue> Engine<Q> {
         self.stall = None;
         self.soft_stats = state.soft_stats;
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use glam::DVec3;
+
+    use super::super::{Engine, EngineConfig, NeighbourSearch};
+    use crate::collision::ContactParams;
+    use crate::domain::{AxisBoundary, Domain};
+    use crate::materials::MaterialTable;
+    use crate::particles::NewParticle;
+    use crate::queue::CalendarQueue;
+
+    /// A cells-mode box after a flow step and a uniform kick, exported.
+    fn exported() -> (Engine<CalendarQueue>, super::EngineState) {
+        let domain = Domain {
+            lo: DVec3::ZERO,
+            hi: DVec3::splat(0.02),
+            axes: [AxisBoundary::Periodic; 3],
+            outlet: None,
+        };
+        let particles: Vec<NewParticle> = (0..27)
+            .map(|k| NewParticle {
+                pos: DVec3::new((k % 3) as f64, ((k / 3) % 3) as f64, (k / 9) as f64) * 0.006
+                    + DVec3::splat(0.003),
+                vel: DVec3::new(
+                    0.1 * ((k % 5) as f64 - 2.0),
+                    0.05 * ((k % 3) as f64 - 1.0),
+                    0.02,
+                ),
+                omega: DVec3::ZERO,
+                radius: 1e-3,
+                material: 0,
+            })
+            .collect();
+        let config = EngineConfig {
+            neighbours: NeighbourSearch::Cells,
+            skin: 2e-4,
+            ..Default::default()
+        };
+        let params = ContactParams::ELASTIC_SMOOTH;
+        let mut engine = Engine::<CalendarQueue>::new(
+            domain,
+            MaterialTable::single(2500.0, params),
+            config,
+            &particles,
+        )
+        .expect("engine");
+        for _ in 0..3 {
+            engine.advance(0.01);
+            engine.end_flow_step();
+            engine.kick_all(DVec3::new(0.0, -0.01, 0.0));
+        }
+        engine.advance(0.01);
+        engine.end_flow_step();
+        let state = engine.export_state().expect("between flow steps");
+        (engine, state)
+    }
+
+    /// The kept pairs go into the state after uniform kicks, and states a
+    /// scan could not walk (a slot in two cells) or entries naming an
+    /// image beyond the 27 are refused.
+    #[test]
+    fn states_with_kept_pairs_round_trip_and_bad_entries_are_refused() {
+        let (mut engine, state) = exported();
+        let kept = state
+            .kept_pairs
+            .clone()
+            .expect("uniform kicks keep the pairs");
+        assert!(
+            kept.iter().any(|p| p.0.is_finite()),
+            "no pair kept: the test would see nothing"
+        );
+        engine.import_state(state.clone()).expect("its own state");
+        let mut twice = state.clone();
+        let first = twice.cells[0];
+        twice.cells.push(first);
+        assert!(engine.import_state(twice).is_err(), "a slot in two cells");
+        let mut image = state.clone();
+        let k = kept.iter().position(|p| p.0.is_finite()).unwrap();
+        let (slot, _) = crate::neighbours::unpack(kept[k].1);
+        image.kept_pairs.as_mut().unwrap()[k].1 = crate::neighbours::pack(slot, 31);
+        assert!(engine.import_state(image).is_err(), "image code 31");
+        // Per-particle kicks drop them.
+        engine.import_state(state).expect("its own state");
+        engine.kick_slots(&vec![DVec3::ZERO; engine.slots()]);
+        assert!(
+            engine
+                .export_state()
+                .expect("between flow steps")
+                .kept_pairs
+                .is_none()
+        );
     }
 }

@@ -254,6 +254,12 @@ impl<Q: EventQueue> Engine<Q> {
                 k.vel += dv;
             }
         }
+        // Kept pairs survive a uniform kick only when every particle was
+        // synchronised (a flow-step end): otherwise each one's
+        // extrapolated position moves by dv times its own elapsed time.
+        if !self.needs_prediction {
+            self.kicks_uniform = false;
+        }
         self.needs_prediction = true;
     }
 
