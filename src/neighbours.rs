@@ -158,18 +158,6 @@ pub const MAX_CELLS: usize = 1 << 22;
 /// Most cells along one axis (an older, per-axis form of the same cap).
 const MAX_CELLS_PER_AXIS: f64 = 1024.0;
 
-/// The cells of a block scan ([`CellGrid::for_each_in_block`]).
-struct BlockRanges {
-    /// Per axis, the cell indices with the image component of their shift
-    /// (0/1/2 for −L/0/+L), each cell once.
-    ranges: [[(usize, u32); 3]; 3],
-    /// How many of `ranges` are used, per axis.
-    counts: [usize; 3],
-    /// Whether the image codes are exact (every periodic axis has at least
-    /// 3 cells).
-    exact: bool,
-}
-
 /// The rows along x of a block scan ([`CellGrid::block_rows`]).
 struct BlockRows {
     /// The cells along x with the image component of their shift.
@@ -182,7 +170,8 @@ struct BlockRows {
     base: [usize; 9],
     image: [u32; 9],
     count: usize,
-    /// See [`BlockRanges::exact`].
+    /// Whether the image codes are exact (every periodic axis has at
+    /// least 3 cells).
     exact: bool,
 }
 
@@ -560,23 +549,19 @@ impl CellGrid {
             }
             return rows;
         }
-        let BlockRanges {
-            ranges,
-            counts,
-            exact,
-        } = self.block_ranges(c, lo, hi);
-        if counts.contains(&0) {
+        let axes: [_; 3] = std::array::from_fn(|a| self.axis_cells(a, c[a], lo[a], hi[a]));
+        if axes.iter().any(|&(_, count)| count == 0) {
             return rows;
         }
-        rows.xs = ranges[0];
-        rows.x_count = counts[0];
-        rows.exact = exact;
+        (rows.xs, rows.x_count) = axes[0];
+        rows.exact = (0..3).all(|a| !self.periodic[a] || d[a] >= 3);
         // Unwrapped and in order, the row's cells are adjacent bits.
-        rows.x_adjacent = ranges[0][..counts[0]]
+        rows.x_adjacent = rows.xs[..rows.x_count]
             .windows(2)
             .all(|w| w[1].0 == w[0].0 + 1);
-        for &(z, iz) in &ranges[2][..counts[2]] {
-            for &(y, iy) in &ranges[1][..counts[1]] {
+        let ((ys, ny), (zs, nz)) = (axes[1], axes[2]);
+        for &(z, iz) in &zs[..nz] {
+            for &(y, iy) in &ys[..ny] {
                 rows.base[rows.count] = self.flat([0, y, z]);
                 rows.image[rows.count] = 3 * iy + 9 * iz;
                 rows.count += 1;
@@ -596,39 +581,31 @@ impl CellGrid {
         ((u64::from_le_bytes(word) >> (first % 8)) & ((1 << len) - 1)) as u32
     }
 
-    /// The cells at offsets `lo..=hi` from `c`, per axis.
+    /// The cells at offsets `lo..=hi` from coordinate `c` along `axis`,
+    /// each once (an axis of 1 or 2 cells repeats them), with the image
+    /// component of their shift (0/1/2 for −L/0/+L); and how many.
     #[inline(always)]
-    fn block_ranges(&self, c: [usize; 3], lo: [i64; 3], hi: [i64; 3]) -> BlockRanges {
-        let mut ranges = [[(0usize, 1u32); 3]; 3];
-        let mut counts = [0usize; 3];
-        let mut exact = true;
-        for axis in 0..3 {
-            let n = self.cells[axis];
-            let mut k = 0;
-            for offset in lo[axis]..=hi[axis] {
-                let mut v = c[axis] as i64 + offset;
-                let mut image = 1;
-                if v < 0 || v >= n as i64 {
-                    if !self.periodic[axis] {
-                        continue;
-                    }
-                    // Wrapped below 0: the neighbour sits near hi, shift -L.
-                    image = if v < 0 { 0 } else { 2 };
-                    v = v.rem_euclid(n as i64);
+    fn axis_cells(&self, axis: usize, c: usize, lo: i64, hi: i64) -> ([(usize, u32); 3], usize) {
+        let n = self.cells[axis] as i64;
+        let mut cells = [(0usize, 1u32); 3];
+        let mut k = 0;
+        for offset in lo..=hi {
+            let mut v = c as i64 + offset;
+            let mut image = 1;
+            if v < 0 || v >= n {
+                if !self.periodic[axis] {
+                    continue;
                 }
-                if !ranges[axis][..k].iter().any(|r| r.0 == v as usize) {
-                    ranges[axis][k] = (v as usize, image);
-                    k += 1;
-                }
+                // Wrapped below 0: the neighbour sits near hi, shift -L.
+                image = if v < 0 { 0 } else { 2 };
+                v = v.rem_euclid(n);
             }
-            counts[axis] = k;
-            exact &= !self.periodic[axis] || n >= 3;
+            if !cells[..k].iter().any(|r| r.0 == v as usize) {
+                cells[k] = (v as usize, image);
+                k += 1;
+            }
         }
-        BlockRanges {
-            ranges,
-            counts,
-            exact,
-        }
+        (cells, k)
     }
 }
 

@@ -280,25 +280,11 @@ impl<Q: EventQueue> Engine<Q> {
         }
         let ki = self.kin_now(i);
         let (best, event) = self.boundary_event(i, &ki);
-        let pair_delay = kept.time - self.now;
-        let (delay, event) = if kept.time.is_finite() && pair_delay < best {
-            (
-                pair_delay,
-                Scheduled {
-                    kind: EventKind::Pair,
-                    face: 0,
-                    partner: kept.entry,
-                    partner_count: kept.partner_count,
-                },
-            )
-        } else {
-            (best, event)
+        let found = PairFound {
+            best: kept.time - self.now,
+            best_entry: kept.time.is_finite().then_some(kept.entry),
         };
-        Prediction {
-            delay,
-            event,
-            candidate: kept,
-        }
+        self.choose(best, event, &found)
     }
 
     /// Finds particle i's earliest event (Eq. 46) and queues it. The

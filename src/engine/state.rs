@@ -86,9 +86,9 @@ fn entry_fits(entry: u32, n: usize) -> bool {
 }
 
 /// Whether no slot below `n` appears twice in `slots`.
-fn each_slot_once(slots: impl Iterator<Item = u32>, n: usize) -> bool {
+fn each_slot_once(mut slots: impl Iterator<Item = u32>, n: usize) -> bool {
     let mut seen = vec![false; n];
-    slots.into_iter().all(|s| {
+    slots.all(|s| {
         let first = !seen[s as usize];
         seen[s as usize] = true;
         first
