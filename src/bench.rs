@@ -699,12 +699,12 @@ mod tests {
             // Smooth spheres that start without spin store none.
             assert_eq!(r.memory_bytes_per_particle["spin"], 0.0);
             let lists = r.memory_bytes_per_particle["neighbour_lists"];
-            let cell_of = r.memory_bytes_per_particle["cell_of"];
+            let cell_state = r.memory_bytes_per_particle["cell_state"];
             let shell = r.memory_bytes_per_particle["shell"];
             match search {
-                NeighbourSearch::Lists => assert!(lists >= 16.0 && cell_of == 0.0, "{r:?}"),
+                NeighbourSearch::Lists => assert!(lists >= 16.0 && cell_state == 0.0, "{r:?}"),
                 // Cells mode keeps no neighbour shells.
-                NeighbourSearch::Cells => assert!(cell_of == 12.0 && shell == 0.0, "{r:?}"),
+                NeighbourSearch::Cells => assert!(cell_state == 32.0 && shell == 0.0, "{r:?}"),
             }
         }
     }

@@ -158,17 +158,19 @@ pub const MAX_CELLS: usize = 1 << 22;
 /// Most cells along one axis (an older, per-axis form of the same cap).
 const MAX_CELLS_PER_AXIS: f64 = 1024.0;
 
-/// The rows along x of a block scan ([`CellGrid::block_rows`]).
+/// The rows along x of a block scan ([`CellGrid::block_rows`]), in
+/// 32-bit cell indices (`MAX_CELLS`) so that the struct moves in
+/// registers rather than through a `memcpy` call.
 struct BlockRows {
     /// The cells along x with the image component of their shift.
-    xs: [(usize, u32); 3],
+    xs: [(u32, u32); 3],
     x_count: usize,
     /// Whether `xs` are consecutive cells (their bits are adjacent).
     x_adjacent: bool,
     /// Flat index of each row's x = 0 cell, and the image code of its
     /// (y, z) shift.
-    base: [usize; 9],
-    image: [u32; 9],
+    base: [u32; 9],
+    image: [u8; 9],
     count: usize,
     /// Whether the image codes are exact (every periodic axis has at
     /// least 3 cells).
@@ -182,7 +184,9 @@ const OCCUPANCY_PAD: usize = 8;
 /// Heap memory (bytes) of a [`CellGrid`] with `cells` cells and `slots`
 /// particle slots.
 pub fn grid_bytes_bound(cells: usize, slots: usize) -> usize {
-    cells.saturating_mul(std::mem::size_of::<u32>())
+    // The cell edges: at most 1024 per axis.
+    3 * MAX_CELLS_PER_AXIS as usize * std::mem::size_of::<f64>()
+        + cells.saturating_mul(std::mem::size_of::<u32>())
         + cells.div_ceil(8)
         + OCCUPANCY_PAD
         + slots.saturating_mul(std::mem::size_of::<Link>())
@@ -196,6 +200,11 @@ pub struct CellGrid {
     lo: DVec3,
     cells: [usize; 3],
     inverse_width: DVec3,
+    /// Cell width per axis (m; 0 on a flat axis).
+    width: DVec3,
+    /// Lower edge of every cell per axis (m), `lo + k / inverse_width`:
+    /// a cell-exit prediction reads them instead of dividing.
+    edges: [Vec<f64>; 3],
     periodic: [bool; 3],
     /// First slot of each cell's list (`NONE` when empty).
     head: Vec<u32>,
@@ -279,10 +288,28 @@ impl CellGrid {
             };
         }
         let total = cells[0] * cells[1] * cells[2];
+        let width = DVec3::from_array(
+            inverse_width
+                .to_array()
+                .map(|w| if w > 0.0 { 1.0 / w } else { 0.0 }),
+        );
+        let edges = std::array::from_fn(|axis| {
+            (0..cells[axis])
+                .map(|k| {
+                    if inverse_width[axis] > 0.0 {
+                        lo[axis] + k as f64 / inverse_width[axis]
+                    } else {
+                        lo[axis]
+                    }
+                })
+                .collect()
+        });
         CellGrid {
             lo,
             cells,
             inverse_width,
+            width,
+            edges,
             periodic,
             head: vec![NONE; total],
             occupancy: vec![0; total.div_ceil(8) + OCCUPANCY_PAD],
@@ -337,23 +364,19 @@ impl CellGrid {
     }
 
     /// Lower corner of cell `c` (m).
+    #[inline]
     pub fn cell_lo(&self, c: [usize; 3]) -> DVec3 {
-        let mut lo = self.lo;
-        for axis in 0..3 {
-            if self.inverse_width[axis] > 0.0 {
-                lo[axis] += c[axis] as f64 / self.inverse_width[axis];
-            }
-        }
-        lo
+        DVec3::new(
+            self.edges[0][c[0]],
+            self.edges[1][c[1]],
+            self.edges[2][c[2]],
+        )
     }
 
     /// Cell width per axis (m; 0 on a flat axis).
+    #[inline]
     pub fn width(&self) -> DVec3 {
-        DVec3::from_array(
-            self.inverse_width
-                .to_array()
-                .map(|w| if w > 0.0 { 1.0 / w } else { 0.0 }),
-        )
+        self.width
     }
 
     /// Cell coordinates of a point, clamped into the grid.
@@ -433,6 +456,7 @@ impl CellGrid {
     /// Heap memory of the grid (bytes).
     pub fn heap_bytes(&self) -> usize {
         self.head.len() * std::mem::size_of::<u32>()
+            + self.edges.iter().map(Vec::len).sum::<usize>() * std::mem::size_of::<f64>()
             + self.occupancy.len()
             + self.next.len() * std::mem::size_of::<u32>()
             + self.links.len() * std::mem::size_of::<Link>()
@@ -493,10 +517,10 @@ impl CellGrid {
         let mut occupied = 0u32;
         for (row, &base) in rows.base[..rows.count].iter().enumerate() {
             let bits = if rows.x_adjacent {
-                self.occupancy_run(base + xs[0].0, xs.len())
+                self.occupancy_run((base + xs[0].0) as usize, xs.len())
             } else {
                 xs.iter().enumerate().fold(0, |bits, (k, &(x, _))| {
-                    bits | (self.occupancy_run(base + x, 1) << k)
+                    bits | (self.occupancy_run((base + x) as usize, 1) << k)
                 })
             };
             occupied |= bits << (3 * row);
@@ -506,8 +530,8 @@ impl CellGrid {
             occupied &= occupied - 1;
             let (row, k) = (bit / 3, bit % 3);
             let (x, ix) = xs[k];
-            let cell = rows.base[row] + x;
-            let image = rows.exact.then_some(ix + rows.image[row]);
+            let cell = (rows.base[row] + x) as usize;
+            let image = rows.exact.then_some(ix + u32::from(rows.image[row]));
             let mut j = self.head[cell];
             while j != NONE {
                 f(j, image);
@@ -533,7 +557,7 @@ impl CellGrid {
         };
         if (0..3).all(|a| c[a] >= 1 && c[a] + 1 < d[a]) {
             for (k, offset) in (lo[0]..=hi[0]).enumerate() {
-                rows.xs[k] = ((c[0] as i64 + offset) as usize, 1);
+                rows.xs[k] = ((c[0] as i64 + offset) as u32, 1);
                 rows.x_count += 1;
             }
             let stride_z = d[0] * d[1];
@@ -541,7 +565,7 @@ impl CellGrid {
                 for dy in lo[1]..=hi[1] {
                     let y = (c[1] as i64 + dy) as usize;
                     let z = (c[2] as i64 + dz) as usize;
-                    rows.base[rows.count] = y * d[0] + z * stride_z;
+                    rows.base[rows.count] = (y * d[0] + z * stride_z) as u32;
                     // Image (1, 1, 1): no shift.
                     rows.image[rows.count] = 3 + 9;
                     rows.count += 1;
@@ -549,21 +573,21 @@ impl CellGrid {
             }
             return rows;
         }
-        let axes: [_; 3] = std::array::from_fn(|a| self.axis_cells(a, c[a], lo[a], hi[a]));
-        if axes.iter().any(|&(_, count)| count == 0) {
+        (rows.xs, rows.x_count) = self.axis_cells(0, c[0], lo[0], hi[0]);
+        let (ys, ny) = self.axis_cells(1, c[1], lo[1], hi[1]);
+        let (zs, nz) = self.axis_cells(2, c[2], lo[2], hi[2]);
+        if rows.x_count == 0 || ny == 0 || nz == 0 {
             return rows;
         }
-        (rows.xs, rows.x_count) = axes[0];
         rows.exact = (0..3).all(|a| !self.periodic[a] || d[a] >= 3);
         // Unwrapped and in order, the row's cells are adjacent bits.
         rows.x_adjacent = rows.xs[..rows.x_count]
             .windows(2)
             .all(|w| w[1].0 == w[0].0 + 1);
-        let ((ys, ny), (zs, nz)) = (axes[1], axes[2]);
         for &(z, iz) in &zs[..nz] {
             for &(y, iy) in &ys[..ny] {
-                rows.base[rows.count] = self.flat([0, y, z]);
-                rows.image[rows.count] = 3 * iy + 9 * iz;
+                rows.base[rows.count] = self.flat([0, y as usize, z as usize]) as u32;
+                rows.image[rows.count] = (3 * iy + 9 * iz) as u8;
                 rows.count += 1;
             }
         }
@@ -585,9 +609,9 @@ impl CellGrid {
     /// each once (an axis of 1 or 2 cells repeats them), with the image
     /// component of their shift (0/1/2 for −L/0/+L); and how many.
     #[inline(always)]
-    fn axis_cells(&self, axis: usize, c: usize, lo: i64, hi: i64) -> ([(usize, u32); 3], usize) {
+    fn axis_cells(&self, axis: usize, c: usize, lo: i64, hi: i64) -> ([(u32, u32); 3], usize) {
         let n = self.cells[axis] as i64;
-        let mut cells = [(0usize, 1u32); 3];
+        let mut cells = [(0u32, 1u32); 3];
         let mut k = 0;
         for offset in lo..=hi {
             let mut v = c as i64 + offset;
@@ -600,8 +624,8 @@ impl CellGrid {
                 image = if v < 0 { 0 } else { 2 };
                 v = v.rem_euclid(n);
             }
-            if !cells[..k].iter().any(|r| r.0 == v as usize) {
-                cells[k] = (v as usize, image);
+            if !cells[..k].iter().any(|r| r.0 == v as u32) {
+                cells[k] = (v as u32, image);
                 k += 1;
             }
         }

@@ -62,7 +62,7 @@ impl<'a, G: Gather, const N: usize> Batch<'a, G, N> {
 
     /// Takes every queued item.
     #[inline]
-    pub fn finish(mut self) {
+    pub fn finish(&mut self) {
         self.take_pending();
     }
 

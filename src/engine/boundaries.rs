@@ -83,7 +83,7 @@ impl<Q: EventQueue> Engine<Q> {
         }
         self.cells.remove(i);
         self.active[i] = false;
-        self.counter[i] = self.counter[i].wrapping_add(1);
+        self.event_state[i].counter = self.event_state[i].counter.wrapping_add(1);
         self.free_slots.push(i as u32);
         self.counters.removed += 1;
         if self.config.record_events {

@@ -30,8 +30,9 @@ impl<Q: EventQueue> Engine<Q> {
             return (*params, None);
         }
         let tc = self.config.tc;
-        let recent = |k: usize| self.now - self.last_collision[k] < tc;
-        let collapsing = |k: usize| self.step_collisions[k] >= self.config.max_collisions_per_step;
+        let recent = |k: usize| self.now - self.event_state[k].last_collision < tc;
+        let collapsing =
+            |k: usize| self.event_state[k].step_collisions >= self.config.max_collisions_per_step;
         let rule = if collapsing(i) || j.is_some_and(collapsing) {
             ElasticRule::CollapseGuard
         } else if tc > 0.0 && (recent(i) || j.is_some_and(recent)) {
@@ -90,11 +91,13 @@ impl<Q: EventQueue> Engine<Q> {
 
     #[inline]
     pub(super) fn note_collision(&mut self, i: usize, partner: u32) {
-        self.counter[i] = self.counter[i].wrapping_add(1);
-        self.last_collision[i] = self.now;
-        self.last_partner[i] = partner;
-        self.step_collisions[i] = self.step_collisions[i].saturating_add(1);
-        if self.step_collisions[i] >= self.config.soft.hybrid_collisions && !self.is_soft[i] {
+        self.event_state[i].counter = self.event_state[i].counter.wrapping_add(1);
+        self.event_state[i].last_collision = self.now;
+        self.event_state[i].last_partner = partner;
+        self.event_state[i].step_collisions = self.event_state[i].step_collisions.saturating_add(1);
+        if self.event_state[i].step_collisions >= self.config.soft.hybrid_collisions
+            && !self.is_soft[i]
+        {
             self.turn_soft(i);
         }
     }

@@ -5,7 +5,7 @@
 use glam::DVec3;
 use rayon::prelude::*;
 
-use super::store::{EventKind, Kinematics, PairCandidate, SHELL_EXIT, Scheduled};
+use super::store::{EventKind, EventState, Kinematics, PairCandidate, SHELL_EXIT, Scheduled};
 use super::{
     CollapseReport, CollisionRecord, ContactModel, Engine, NO_PARTNER, NeighbourSearch, Record,
     StallReport,
@@ -88,18 +88,16 @@ impl<Q: EventQueue> Engine<Q> {
         self.now = end;
     }
 
-    /// Requests the first data particle i's next event reads: its event,
-    /// kinematics, last collision and wall faces, and its cell and kept
-    /// pair (cells mode) or its shell and neighbour list (lists mode).
+    /// Requests the first data particle i's next event reads: its event
+    /// state, kinematics and wall faces, and its cell and kept pair (cells
+    /// mode) or its shell and neighbour list (lists mode).
     #[inline(always)]
     fn prefetch_particle(&self, i: usize) {
-        prefetch(&self.scheduled[i]);
+        prefetch(&self.event_state[i]);
         prefetch(&self.kin[i]);
-        prefetch(&self.last_collision[i]);
         prefetch(&self.face_mask[i]);
         if self.config.neighbours == NeighbourSearch::Cells {
-            prefetch(&self.cell_of[i]);
-            prefetch(&self.pair_candidate[i]);
+            prefetch(&self.cell_state[i]);
             self.cells.prefetch_slot(i);
         } else {
             prefetch(&self.shell_centres[i]);
@@ -121,12 +119,12 @@ impl<Q: EventQueue> Engine<Q> {
     ) -> StallReport {
         let worst = (0..self.kin.len())
             .filter(|&i| self.active[i])
-            .max_by_key(|&i| (self.step_collisions[i], std::cmp::Reverse(i)));
+            .max_by_key(|&i| (self.event_state[i].step_collisions, std::cmp::Reverse(i)));
         let (id, position, collisions) = match worst {
             Some(i) => (
                 self.id[i],
                 self.domain.wrap(self.kin[i].position_at(self.now)),
-                self.step_collisions[i],
+                self.event_state[i].step_collisions,
             ),
             None => (0, DVec3::ZERO, 0),
         };
@@ -139,10 +137,10 @@ impl<Q: EventQueue> Engine<Q> {
             position,
             collisions,
             beyond_guard: self
-                .step_collisions
+                .event_state
                 .iter()
                 .zip(&self.active)
-                .filter(|&(&c, &a)| a && c >= self.config.max_collisions_per_step)
+                .filter(|&(e, &a)| a && e.step_collisions >= self.config.max_collisions_per_step)
                 .count(),
         }
     }
@@ -188,15 +186,17 @@ impl<Q: EventQueue> Engine<Q> {
         self.synchronise();
         let time = self.time();
         for i in 0..self.kin.len() {
-            if self.active[i] && self.step_collisions[i] > self.config.max_collisions_per_step {
+            if self.active[i]
+                && self.event_state[i].step_collisions > self.config.max_collisions_per_step
+            {
                 self.collapse_reports.push(CollapseReport {
                     time,
                     id: self.id[i],
                     position: self.domain.wrap(self.kin[i].pos),
-                    collisions: self.step_collisions[i],
+                    collisions: self.event_state[i].step_collisions,
                 });
             }
-            self.step_collisions[i] = 0;
+            self.event_state[i].step_collisions = 0;
         }
         let shift = self.now;
         let sum = self.time_origin + shift;
@@ -210,11 +210,11 @@ impl<Q: EventQueue> Engine<Q> {
         for k in &mut self.kin {
             k.time = 0.0;
         }
-        for t in &mut self.last_collision {
-            *t -= shift;
+        for e in &mut self.event_state {
+            e.last_collision -= shift;
         }
-        for c in &mut self.pair_candidate {
-            c.time -= shift;
+        for c in &mut self.cell_state {
+            c.candidate.time -= shift;
         }
         self.needs_prediction = true;
         self.retry_pending_reinsertions();
@@ -270,11 +270,12 @@ impl<Q: EventQueue> Engine<Q> {
     /// from the states before the kicks (round-off).
     #[inline]
     fn prediction_after_uniform_kick(&self, i: usize) -> Prediction {
-        let kept = self.pair_candidate[i];
+        let kept = self.cell_state[i].candidate;
         if kept.time.is_nan()
             || kept.time < self.now
             || (kept.time.is_finite()
-                && self.counter[neighbours::unpack(kept.entry).0 as usize] != kept.partner_count)
+                && self.event_state[neighbours::unpack(kept.entry).0 as usize].counter
+                    != kept.partner_count)
         {
             return self.prediction(i);
         }
@@ -330,9 +331,9 @@ impl<Q: EventQueue> Engine<Q> {
     #[inline]
     fn apply(&mut self, i: usize, p: &Prediction) {
         if self.config.neighbours == NeighbourSearch::Cells {
-            self.pair_candidate[i] = p.candidate;
+            self.cell_state[i].candidate = p.candidate;
         }
-        self.scheduled[i] = p.event;
+        self.event_state[i].scheduled = p.event;
         self.queue.set(i as u32, self.now + p.delay);
     }
 
@@ -345,9 +346,10 @@ impl<Q: EventQueue> Engine<Q> {
     /// itself). Otherwise, a full prediction.
     #[inline]
     pub(super) fn predict_after_crossing(&mut self, i: usize, axis: usize, up: bool) {
-        let kept = self.pair_candidate[i];
+        let kept = self.cell_state[i].candidate;
         if kept.time.is_finite()
-            && self.counter[neighbours::unpack(kept.entry).0 as usize] != kept.partner_count
+            && self.event_state[neighbours::unpack(kept.entry).0 as usize].counter
+                != kept.partner_count
         {
             return self.predict(i);
         }
@@ -463,7 +465,7 @@ impl<Q: EventQueue> Engine<Q> {
     /// delay `best` (s).
     #[inline]
     fn choose(&self, best: f64, event: Scheduled, found: &PairFound) -> Prediction {
-        let candidate = found.candidate(self.now, &self.counter);
+        let candidate = found.candidate(self.now, &self.event_state);
         match found.best_entry {
             Some(entry) if found.best < best => Prediction {
                 delay: found.best,
@@ -485,12 +487,12 @@ impl<Q: EventQueue> Engine<Q> {
 
     #[inline]
     pub(super) fn process(&mut self, i: usize) {
-        let event = self.scheduled[i];
+        let event = self.event_state[i].scheduled;
         match event.kind {
             EventKind::Pair => {
                 let (j, code) = neighbours::unpack(event.partner);
                 let j = j as usize;
-                if self.counter[j] != event.partner_count {
+                if self.event_state[j].counter != event.partner_count {
                     self.counters.stale_events += 1;
                     self.predict(i);
                 } else {
@@ -572,8 +574,8 @@ impl<'a> PairSearch<'a> {
         // A pair that collided at this very instant may still touch and,
         // by round-off, still look approaching; colliding it again at delay
         // 0 would repeat for ever without moving the clock.
-        let just_hit = if engine.last_collision[i] == now {
-            engine.last_partner[i]
+        let just_hit = if engine.event_state[i].last_collision == now {
+            engine.event_state[i].last_partner
         } else {
             NO_PARTNER
         };
@@ -629,12 +631,12 @@ impl Gather for PairSearch<'_> {
 impl PairFound {
     /// The best pair found, to keep for a later partial prediction.
     #[inline]
-    fn candidate(&self, now: f64, counter: &[u32]) -> PairCandidate {
+    fn candidate(&self, now: f64, event_state: &[EventState]) -> PairCandidate {
         match self.best_entry {
             Some(entry) => PairCandidate {
                 time: now + self.best,
                 entry,
-                partner_count: counter[neighbours::unpack(entry).0 as usize],
+                partner_count: event_state[neighbours::unpack(entry).0 as usize].counter,
             },
             None => PairCandidate::NONE,
         }

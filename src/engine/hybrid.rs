@@ -177,7 +177,7 @@ impl<Q: EventQueue> Engine<Q> {
             self.sync(i);
             self.kin[i].vel = st.spheres[k].vel;
             self.spins.set(i, st.spheres[k].omega);
-            self.counter[i] = self.counter[i].wrapping_add(1);
+            self.event_state[i].counter = self.event_state[i].counter.wrapping_add(1);
             self.predict(i);
         }
     }
@@ -207,13 +207,13 @@ impl<Q: EventQueue> Engine<Q> {
         let mut k = 0;
         while k < st.members.len() {
             let i = st.members[k];
-            if st.touched[k] || self.step_collisions[i] >= threshold {
+            if st.touched[k] || self.event_state[i].step_collisions >= threshold {
                 k += 1;
                 continue;
             }
             self.drop_member(st, k);
             self.is_soft[i] = false;
-            self.counter[i] = self.counter[i].wrapping_add(1);
+            self.event_state[i].counter = self.event_state[i].counter.wrapping_add(1);
             if !self.needs_prediction {
                 self.predict(i);
             }

@@ -35,7 +35,7 @@ pub use state::{EngineState, SlotState};
 pub use store::ParticleView;
 
 use soft_stepper::{SOFT_START_OVERLAP, SoftStepper};
-use store::{Kinematics, PairCandidate, SHELL_EXIT, Scheduled, Spins};
+use store::{CellState, EventState, Kinematics, Spins};
 
 use glam::DVec3;
 use rand::SeedableRng;
@@ -243,23 +243,17 @@ pub struct Engine<Q: EventQueue> {
     material: Vec<u16>,
     id: Vec<u64>,
     active: Vec<bool>,
-    counter: Vec<u32>,
-    scheduled: Vec<Scheduled>,
+    /// Each particle's pending event and event history, in one record.
+    event_state: Vec<EventState>,
     /// Lists mode: where each particle's shell is centred (m); its reach
     /// is the radius plus `skin` (empty in cells mode).
     shell_centres: Vec<DVec3>,
     /// Bit `f` set when the shell (lists mode) or cell (cells mode) reaches
     /// domain face `f` (wall or outlet).
     face_mask: Vec<u8>,
-    /// Cells mode: the cell each particle is in (empty in lists mode).
-    cell_of: Vec<[u32; 3]>,
-    /// Cells mode: each particle's best pair at its last prediction
-    /// (empty in lists mode).
-    pair_candidate: Vec<PairCandidate>,
-    last_collision: Vec<f64>,
-    /// Slot of the last collision partner (`NO_PARTNER` after a wall).
-    last_partner: Vec<u32>,
-    step_collisions: Vec<u32>,
+    /// Cells mode: the cell each particle is in and its best pair at its
+    /// last prediction (empty in lists mode).
+    cell_state: Vec<CellState>,
     free_slots: Vec<u32>,
     next_id: u64,
 
@@ -413,16 +407,11 @@ impl<Q: EventQueue> Engine<Q> {
             material: Vec::with_capacity(n),
             id: Vec::with_capacity(n),
             active: Vec::with_capacity(n),
-            counter: Vec::with_capacity(n),
-            scheduled: Vec::with_capacity(n),
+            event_state: Vec::with_capacity(n),
             // Cells mode keeps no shells.
             shell_centres: Vec::with_capacity(if cells_mode { 0 } else { n }),
             face_mask: Vec::with_capacity(n),
-            cell_of: Vec::with_capacity(if cells_mode { n } else { 0 }),
-            pair_candidate: Vec::with_capacity(if cells_mode { n } else { 0 }),
-            last_collision: Vec::with_capacity(n),
-            last_partner: Vec::with_capacity(n),
-            step_collisions: Vec::with_capacity(n),
+            cell_state: Vec::with_capacity(if cells_mode { n } else { 0 }),
             free_slots: Vec::new(),
             next_id: 0,
             // Cells mode keeps no lists.
@@ -553,18 +542,16 @@ impl<Q: EventQueue> Engine<Q> {
             self.material[s] = p.material;
             self.id[s] = id;
             self.active[s] = true;
-            self.counter[s] = self.counter[s].wrapping_add(1);
-            self.scheduled[s] = SHELL_EXIT;
+            self.event_state[s] = EventState {
+                counter: self.event_state[s].counter.wrapping_add(1),
+                ..EventState::NEW
+            };
             self.face_mask[s] = 0;
             if self.uses_cells() {
-                self.cell_of[s] = [0; 3];
-                self.pair_candidate[s] = PairCandidate::UNPREDICTED;
+                self.cell_state[s] = CellState::NEW;
             } else {
                 self.shell_centres[s] = p.pos;
             }
-            self.last_collision[s] = f64::NEG_INFINITY;
-            self.last_partner[s] = NO_PARTNER;
-            self.step_collisions[s] = 0;
             self.is_soft[s] = false;
             return s;
         }
@@ -574,18 +561,13 @@ impl<Q: EventQueue> Engine<Q> {
         self.material.push(p.material);
         self.id.push(id);
         self.active.push(true);
-        self.counter.push(0);
-        self.scheduled.push(SHELL_EXIT);
+        self.event_state.push(EventState::NEW);
         self.face_mask.push(0);
         if self.uses_cells() {
-            self.cell_of.push([0; 3]);
-            self.pair_candidate.push(PairCandidate::UNPREDICTED);
+            self.cell_state.push(CellState::NEW);
         } else {
             self.shell_centres.push(p.pos);
         }
-        self.last_collision.push(f64::NEG_INFINITY);
-        self.last_partner.push(NO_PARTNER);
-        self.step_collisions.push(0);
         self.is_soft.push(false);
         let slots = self.kin.len();
         if !self.uses_cells() {
@@ -749,15 +731,10 @@ impl<Q: EventQueue> Engine<Q> {
             ("material", bytes(&self.material)),
             ("id", bytes(&self.id)),
             ("active", bytes(&self.active)),
-            ("event_counter", bytes(&self.counter)),
-            ("scheduled_event", bytes(&self.scheduled)),
+            ("event_state", bytes(&self.event_state)),
             ("shell", bytes(&self.shell_centres)),
             ("face_mask", bytes(&self.face_mask)),
-            ("cell_of", bytes(&self.cell_of)),
-            ("pair_candidate", bytes(&self.pair_candidate)),
-            ("last_collision", bytes(&self.last_collision)),
-            ("last_partner", bytes(&self.last_partner)),
-            ("step_collisions", bytes(&self.step_collisions)),
+            ("cell_state", bytes(&self.cell_state)),
             ("is_soft", bytes(&self.is_soft)),
             ("free_slots", bytes(&self.free_slots)),
             ("neighbour_lists", self.lists.heap_bytes()),
@@ -818,7 +795,7 @@ mod tests {
         )
         .expect("engine");
         engine.ensure_predicted();
-        assert_eq!(engine.scheduled[0].kind, EventKind::Pair);
+        assert_eq!(engine.event_state[0].scheduled.kind, EventKind::Pair);
         // Reverse both behind the predictions' back (counters unchanged).
         engine.kin[0].vel = -engine.kin[0].vel;
         engine.kin[1].vel = -engine.kin[1].vel;

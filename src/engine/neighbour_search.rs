@@ -27,14 +27,14 @@ impl<Q: EventQueue> Engine<Q> {
     /// Cells mode: the cell particle i is in.
     #[inline]
     pub(super) fn cell(&self, i: usize) -> [usize; 3] {
-        self.cell_of[i].map(|k| k as usize)
+        self.cell_state[i].cell.map(|k| k as usize)
     }
 
     /// Cells mode: records particle i in cell `c` and which domain faces
     /// that cell touches.
     #[inline]
     pub(super) fn move_to_cell(&mut self, i: usize, c: [usize; 3]) {
-        self.cell_of[i] = c.map(|k| k as u32);
+        self.cell_state[i].cell = c.map(|k| k as u32);
         self.cells.place_in(i, c);
         let dims = self.cells.dims();
         let mut mask = 0u8;
@@ -129,7 +129,7 @@ impl<Q: EventQueue> Engine<Q> {
         self.kin[i].pos = pos;
         // Others' predictions hold image codes relative to the old
         // coordinates: mark them stale.
-        self.counter[i] = self.counter[i].wrapping_add(1);
+        self.event_state[i].counter = self.event_state[i].counter.wrapping_add(1);
         if self.config.record_events {
             self.records.push(Record::Wrap {
                 time: self.time(),

@@ -16,7 +16,7 @@ use glam::DVec3;
 use rand_xoshiro::Xoshiro256PlusPlus;
 use serde::{Deserialize, Serialize};
 
-use super::store::{Kinematics, PairCandidate, SHELL_EXIT, Spins};
+use super::store::{CellState, EventState, Kinematics, PairCandidate, Spins};
 use super::{CollapseReport, ContactModel, Counters, Engine, SoftStats};
 use crate::neighbours::{CellEntry, NeighbourLists};
 use crate::particles::NewParticle;
@@ -141,7 +141,7 @@ impl<Q: EventQueue> Engine<Q> {
                 material: self.material[i],
                 id: self.id[i],
                 active: self.active[i],
-                counter: self.counter[i],
+                counter: self.event_state[i].counter,
                 // Cells mode keeps no shells: its slots record a shell
                 // at the position, which nothing reads back.
                 shell_centre: self
@@ -151,9 +151,12 @@ impl<Q: EventQueue> Engine<Q> {
                     .unwrap_or(self.kin[i].pos),
                 shell_reach: self.kin[i].radius + self.config.skin,
                 face_mask: self.face_mask[i],
-                cell: self.cell_of.get(i).map_or([0; 3], |c| c.map(u64::from)),
-                last_collision: self.last_collision[i],
-                last_partner: self.last_partner[i],
+                cell: self
+                    .cell_state
+                    .get(i)
+                    .map_or([0; 3], |c| c.cell.map(u64::from)),
+                last_collision: self.event_state[i].last_collision,
+                last_partner: self.event_state[i].last_partner,
             })
             .collect();
         Ok(EngineState {
@@ -183,9 +186,15 @@ impl<Q: EventQueue> Engine<Q> {
             collapse_reports: self.collapse_reports.clone(),
             soft_stats: self.soft_stats,
             kept_pairs: (self.uses_cells() && self.kicks_uniform).then(|| {
-                self.pair_candidate
+                self.cell_state
                     .iter()
-                    .map(|c| (c.time, c.entry, c.partner_count))
+                    .map(|c| {
+                        (
+                            c.candidate.time,
+                            c.candidate.entry,
+                            c.candidate.partner_count,
+                        )
+                    })
                     .collect()
             }),
         })
@@ -268,8 +277,16 @@ impl<Q: EventQueue> Engine<Q> {
         self.material = state.slots.iter().map(|s| s.material).collect();
         self.id = state.slots.iter().map(|s| s.id).collect();
         self.active = state.slots.iter().map(|s| s.active).collect();
-        self.counter = state.slots.iter().map(|s| s.counter).collect();
-        self.scheduled = vec![SHELL_EXIT; n];
+        self.event_state = state
+            .slots
+            .iter()
+            .map(|s| EventState {
+                counter: s.counter,
+                last_collision: s.last_collision,
+                last_partner: s.last_partner,
+                ..EventState::NEW
+            })
+            .collect();
         self.shell_centres = if self.uses_cells() {
             Vec::new()
         } else {
@@ -277,29 +294,27 @@ impl<Q: EventQueue> Engine<Q> {
         };
         self.face_mask = state.slots.iter().map(|s| s.face_mask).collect();
         if self.uses_cells() {
-            self.cell_of = state
-                .slots
-                .iter()
-                .map(|s| s.cell.map(|c| c as u32))
-                .collect();
             // A state written after uniform kicks only keeps its pairs, so
             // that the restarted run re-predicts as the original did.
-            self.pair_candidate = match &state.kept_pairs {
-                Some(kept) => kept
-                    .iter()
-                    .map(|&(time, entry, partner_count)| PairCandidate {
-                        time,
-                        entry,
-                        partner_count,
-                    })
-                    .collect(),
-                None => vec![PairCandidate::UNPREDICTED; n],
-            };
+            let kept = state.kept_pairs.as_deref();
+            self.cell_state = state
+                .slots
+                .iter()
+                .enumerate()
+                .map(|(i, s)| CellState {
+                    candidate: kept.map_or(PairCandidate::UNPREDICTED, |k| {
+                        let (time, entry, partner_count) = k[i];
+                        PairCandidate {
+                            time,
+                            entry,
+                            partner_count,
+                        }
+                    }),
+                    cell: s.cell.map(|c| c as u32),
+                })
+                .collect();
         }
         self.kicks_uniform = state.kept_pairs.is_some();
-        self.last_collision = state.slots.iter().map(|s| s.last_collision).collect();
-        self.last_partner = state.slots.iter().map(|s| s.last_partner).collect();
-        self.step_collisions = vec![0; n];
         self.is_soft = vec![false; n];
         self.turned_soft.clear();
         self.free_slots = state.free_slots;

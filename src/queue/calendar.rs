@@ -31,6 +31,7 @@
 //! or too wide (crowded heap).
 
 use std::collections::HashMap;
+use std::hash::{BuildHasherDefault, Hasher};
 
 use super::EventQueue;
 use super::indexed_heap::{self, Entry};
@@ -56,6 +57,30 @@ const MAX_BUCKET: f64 = 4_611_686_018_427_387_904.0;
 /// about 0.1 % of cases (Poisson), so half a cache line per bucket
 /// suffices and the ring costs 32 bytes per bucket.
 const LINE_CAP: usize = 7;
+
+/// Hashes a ring bucket number for the spill map: one multiplication
+/// (Fibonacci hashing) instead of SipHash, whose cost showed in profiles
+/// (the map is asked on every bucket load while any spill exists). Keys
+/// are our own bucket numbers, so no protection against chosen keys is
+/// needed.
+#[derive(Default)]
+struct BucketHasher(u64);
+
+impl Hasher for BucketHasher {
+    fn finish(&self) -> u64 {
+        self.0
+    }
+
+    fn write(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.0 = (self.0.rotate_left(8) ^ u64::from(b)).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+        }
+    }
+
+    fn write_u32(&mut self, key: u32) {
+        self.0 = u64::from(key).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+    }
+}
 
 /// Slot `loc` of a particle without an event.
 const ABSENT: u32 = u32::MAX;
@@ -105,7 +130,7 @@ pub struct CalendarQueue {
     /// Ring of `nb` (a power of two) buckets: inline lines, then spills
     /// (by bucket, only for buckets that have one).
     lines: Vec<Line>,
-    spills: HashMap<u32, Vec<u32>>,
+    spills: HashMap<u32, Vec<u32>, BuildHasherDefault<BucketHasher>>,
     /// Events in ring buckets, and how many of them are in spills.
     ring_len: usize,
     spill_len: usize,
@@ -429,7 +454,7 @@ impl EventQueue for CalendarQueue {
             slots: vec![NO_SLOT; n],
             heap: Vec::new(),
             lines: vec![EMPTY_LINE; nb],
-            spills: HashMap::new(),
+            spills: HashMap::default(),
             ring_len: 0,
             spill_len: 0,
             overflow: Vec::with_capacity(n),
