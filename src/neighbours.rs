@@ -189,7 +189,7 @@ pub fn grid_bytes_bound(cells: usize, slots: usize) -> usize {
         + cells.saturating_mul(std::mem::size_of::<u32>())
         + cells.div_ceil(8)
         + OCCUPANCY_PAD
-        + slots.saturating_mul(std::mem::size_of::<Link>())
+        + slots.saturating_mul(std::mem::size_of::<Link>() + std::mem::size_of::<u32>())
 }
 
 /// Uniform grid of cells holding particles by shell centre: each cell is a
@@ -675,6 +675,24 @@ mod tests {
         let n = CellGrid::dims_for(DVec3::new(5.0, 1e4, 1e4), 1.0, [true, false, false]);
         assert!(n[0] >= 3, "{n:?}");
         assert!(n.iter().product::<usize>() <= MAX_CELLS, "{n:?}");
+    }
+
+    /// The bound the scenario limits use holds what a grid allocates,
+    /// and is not far above it (so that it can fail).
+    #[test]
+    fn grid_bytes_bound_holds_a_grid() {
+        for (size, slots) in [(DVec3::new(10.0, 20.0, 5.0), 1000), (DVec3::splat(3.0), 7)] {
+            let g = CellGrid::new(DVec3::ZERO, size, 1.0, [true, false, true], slots);
+            let d = g.dims();
+            let bound = grid_bytes_bound(d[0] * d[1] * d[2], slots);
+            let used = g.heap_bytes();
+            // The bound allows 1024 edges per axis; these grids have 20 or fewer.
+            let edges_slack = 3 * 1024 * 8;
+            assert!(
+                used <= bound && bound <= used + edges_slack,
+                "{used} {bound}"
+            );
+        }
     }
 
     /// The cells of a block around `c`, in visiting order (z, y, x), each

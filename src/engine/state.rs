@@ -85,6 +85,22 @@ fn entry_fits(entry: u32, n: usize) -> bool {
     (slot as usize) < n && image < 27
 }
 
+/// Cells mode: whether every active slot's cell lies in a grid of `dims`
+/// cells, and the grid's entries list exactly the active slots, each in
+/// its own cell (a scan or a cell-exit time would otherwise read outside
+/// the grid, or miss particles).
+fn cells_agree(state: &EngineState, dims: [usize; 3]) -> bool {
+    let inside = |c: [u64; 3]| (0..3).all(|a| c[a] < dims[a] as u64);
+    let flat = |c: [u64; 3]| c[0] + dims[0] as u64 * (c[1] + dims[1] as u64 * c[2]);
+    let slots = &state.slots;
+    slots.iter().filter(|s| s.active).all(|s| inside(s.cell))
+        && state.cells.len() == slots.iter().filter(|s| s.active).count()
+        && state.cells.iter().all(|(c, e)| {
+            let s = &slots[e.index as usize];
+            s.active && flat(s.cell) == u64::from(*c)
+        })
+}
+
 /// Whether no slot below `n` appears twice in `slots`.
 fn each_slot_once(mut slots: impl Iterator<Item = u32>, n: usize) -> bool {
     let mut seen = vec![false; n];
@@ -225,6 +241,12 @@ impl<Q: EventQueue> Engine<Q> {
             || !each_slot_once(state.cells.iter().map(|(_, e)| e.index), n)
         {
             return Err("neighbour lists or cells that do not fit the particle table or this scenario's grid".into());
+        }
+        if self.uses_cells() && !cells_agree(&state, dims) {
+            return Err(
+                "particles whose cell is outside this scenario's grid or disagrees with the grid's entries"
+                    .into(),
+            );
         }
         if let Some(kept) = &state.kept_pairs
             && (!self.uses_cells()
@@ -429,6 +451,25 @@ mod tests {
         let (slot, _) = crate::neighbours::unpack(kept[k].1);
         image.kept_pairs.as_mut().unwrap()[k].1 = crate::neighbours::pack(slot, 31);
         assert!(engine.import_state(image).is_err(), "image code 31");
+        // A particle's cell outside the grid, or not the cell that holds it.
+        let dims = engine.cells.dims();
+        let (_, entry) = state.cells[0];
+        let mut outside = state.clone();
+        outside.slots[entry.index as usize].cell[1] = dims[1] as u64;
+        assert!(
+            engine.import_state(outside).is_err(),
+            "cell beyond the grid"
+        );
+        let mut moved = state.clone();
+        let cell = &mut moved.slots[entry.index as usize].cell;
+        cell[0] = (cell[0] + 1) % dims[0] as u64;
+        assert!(engine.import_state(moved).is_err(), "cell not the grid's");
+        let mut missing = state.clone();
+        missing.cells.remove(0);
+        assert!(
+            engine.import_state(missing).is_err(),
+            "a particle in no cell"
+        );
         // Per-particle kicks drop them.
         engine.import_state(state).expect("its own state");
         engine.kick_slots(&vec![DVec3::ZERO; engine.slots()]);

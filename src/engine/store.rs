@@ -374,6 +374,8 @@ pub(super) struct EventState {
     pub(super) step_collisions: u32,
 }
 
+const _: () = assert!(std::mem::size_of::<EventState>() == 32);
+
 impl EventState {
     /// A new slot's: no event, no collision yet.
     pub(super) const NEW: EventState = EventState {
@@ -405,6 +407,8 @@ pub(super) struct CellState {
     pub(super) candidate: PairCandidate,
     pub(super) cell: [u32; 3],
 }
+
+const _: () = assert!(std::mem::size_of::<CellState>() == 32);
 
 impl CellState {
     /// A new or renumbered slot's: cell 0 until placed, no search yet.
