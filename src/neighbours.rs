@@ -541,8 +541,9 @@ impl CellGrid {
     }
 
     /// The rows along x of the block at offsets `lo..=hi` from cell `c`,
-    /// z outer and y inner. A cell away from every face (most of them) has
-    /// no wrap and no repeat, and its rows are plain offsets.
+    /// z outer and y inner. A cell away from every face (most of them,
+    /// also in planar runs) has no wrap and no repeat, and its rows are
+    /// plain offsets.
     #[inline(always)]
     fn block_rows(&self, c: [usize; 3], lo: [i64; 3], hi: [i64; 3]) -> BlockRows {
         let d = self.cells;
@@ -555,14 +556,27 @@ impl CellGrid {
             count: 0,
             exact: true,
         };
-        if (0..3).all(|a| c[a] >= 1 && c[a] + 1 < d[a]) {
-            for (k, offset) in (lo[0]..=hi[0]).enumerate() {
+        // A flat axis (one cell, walls: a planar run's out-of-plane axis)
+        // offers only its one cell, offset 0.
+        let flat = |a: usize| d[a] == 1 && !self.periodic[a];
+        if (0..3).all(|a| (c[a] >= 1 && c[a] + 1 < d[a]) || flat(a)) {
+            let mut range = [(0i64, 0i64); 3];
+            for a in 0..3 {
+                range[a] = if !flat(a) {
+                    (lo[a], hi[a])
+                } else if lo[a] <= 0 && 0 <= hi[a] {
+                    (0, 0)
+                } else {
+                    return rows;
+                };
+            }
+            for (k, offset) in (range[0].0..=range[0].1).enumerate() {
                 rows.xs[k] = ((c[0] as i64 + offset) as u32, 1);
                 rows.x_count += 1;
             }
             let stride_z = d[0] * d[1];
-            for dz in lo[2]..=hi[2] {
-                for dy in lo[1]..=hi[1] {
+            for dz in range[2].0..=range[2].1 {
+                for dy in range[1].0..=range[1].1 {
                     let y = (c[1] as i64 + dy) as usize;
                     let z = (c[2] as i64 + dz) as usize;
                     rows.base[rows.count] = (y * d[0] + z * stride_z) as u32;
