@@ -391,7 +391,8 @@ impl CellGrid {
         c
     }
 
-    fn flat(&self, c: [usize; 3]) -> usize {
+    /// Flat index of cell `c` (x fastest).
+    pub fn flat(&self, c: [usize; 3]) -> usize {
         c[0] + self.cells[0] * (c[1] + self.cells[1] * c[2])
     }
 

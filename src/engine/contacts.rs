@@ -91,13 +91,12 @@ impl<Q: EventQueue> Engine<Q> {
 
     #[inline]
     pub(super) fn note_collision(&mut self, i: usize, partner: u32) {
-        self.event_state[i].counter = self.event_state[i].counter.wrapping_add(1);
-        self.event_state[i].last_collision = self.now;
-        self.event_state[i].last_partner = partner;
-        self.event_state[i].step_collisions = self.event_state[i].step_collisions.saturating_add(1);
-        if self.event_state[i].step_collisions >= self.config.soft.hybrid_collisions
-            && !self.is_soft[i]
-        {
+        let e = &mut self.event_state[i];
+        e.counter = e.counter.wrapping_add(1);
+        e.last_collision = self.now;
+        e.last_partner = partner;
+        e.step_collisions = e.step_collisions.saturating_add(1);
+        if e.step_collisions >= self.config.soft.hybrid_collisions && !self.is_soft[i] {
             self.turn_soft(i);
         }
     }

@@ -18,7 +18,7 @@ use serde::{Deserialize, Serialize};
 
 use super::store::{CellState, EventState, Kinematics, PairCandidate, Spins};
 use super::{CollapseReport, ContactModel, Counters, Engine, SoftStats};
-use crate::neighbours::{CellEntry, NeighbourLists};
+use crate::neighbours::{CellEntry, CellGrid, NeighbourLists};
 use crate::particles::NewParticle;
 use crate::queue::EventQueue;
 
@@ -85,19 +85,20 @@ fn entry_fits(entry: u32, n: usize) -> bool {
     (slot as usize) < n && image < 27
 }
 
-/// Cells mode: whether every active slot's cell lies in a grid of `dims`
-/// cells, and the grid's entries list exactly the active slots, each in
-/// its own cell (a scan or a cell-exit time would otherwise read outside
-/// the grid, or miss particles).
-fn cells_agree(state: &EngineState, dims: [usize; 3]) -> bool {
+/// Cells mode: whether every active slot's cell lies in `grid`, and the
+/// grid's entries list exactly the active slots, each in its own cell (a
+/// scan or a cell-exit time would otherwise read outside the grid, or miss
+/// particles).
+fn cells_agree(state: &EngineState, grid: &CellGrid) -> bool {
+    let dims = grid.dims();
     let inside = |c: [u64; 3]| (0..3).all(|a| c[a] < dims[a] as u64);
-    let flat = |c: [u64; 3]| c[0] + dims[0] as u64 * (c[1] + dims[1] as u64 * c[2]);
     let slots = &state.slots;
     slots.iter().filter(|s| s.active).all(|s| inside(s.cell))
         && state.cells.len() == slots.iter().filter(|s| s.active).count()
         && state.cells.iter().all(|(c, e)| {
             let s = &slots[e.index as usize];
-            s.active && flat(s.cell) == u64::from(*c)
+            // Active slots' cells were found inside above.
+            s.active && grid.flat(s.cell.map(|k| k as usize)) == *c as usize
         })
 }
 
@@ -242,7 +243,7 @@ impl<Q: EventQueue> Engine<Q> {
         {
             return Err("neighbour lists or cells that do not fit the particle table or this scenario's grid".into());
         }
-        if self.uses_cells() && !cells_agree(&state, dims) {
+        if self.uses_cells() && !cells_agree(&state, &self.cells) {
             return Err(
                 "particles whose cell is outside this scenario's grid or disagrees with the grid's entries"
                     .into(),
