@@ -120,7 +120,52 @@ fn bench_case(c: &mut Criterion, label: &str, n: [usize; 3], periodic: [bool; 3]
     group.finish();
 }
 
+/// The direct solver inside rayon pools of 1 and 2 threads (as in a run,
+/// whose gas step runs on a pool worker): factor and solve (`cold`, the
+/// matrix alternates) and solve with the kept factor. Its two halves run on
+/// two threads when large enough.
+fn bench_direct_threads(c: &mut Criterion, label: &str, n: [usize; 3]) {
+    let a = pressure_like(n, [false; 3], 1);
+    let mut a_next = a.clone();
+    a_next.diag.iter_mut().for_each(|d| *d *= 1.0001);
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(2);
+    let b: Vec<f64> = (0..a.len()).map(|_| rng.random_range(-1.0..1.0)).collect();
+    let mut group = c.benchmark_group(format!("direct-threads/{label}"));
+    for threads in [1, 2] {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        let mut direct = BandedCholesky::new();
+        let mut x = vec![0.0; a.len()];
+        let matrices = [&a, &a_next];
+        let mut turn = 0;
+        group.bench_function(BenchmarkId::new("cold", threads), |bch| {
+            pool.install(|| {
+                bch.iter(|| {
+                    turn ^= 1;
+                    direct
+                        .solve(black_box(matrices[turn]), black_box(&b), &mut x, TOLERANCE)
+                        .unwrap()
+                })
+            })
+        });
+        group.bench_function(BenchmarkId::new("kept-factor", threads), |bch| {
+            pool.install(|| {
+                bch.iter(|| {
+                    direct
+                        .solve(black_box(&a), black_box(&b), &mut x, TOLERANCE)
+                        .unwrap()
+                })
+            })
+        });
+    }
+    group.finish();
+}
+
 fn benches(c: &mut Criterion) {
+    bench_direct_threads(c, "16x200", [16, 200, 1]);
+    bench_direct_threads(c, "15x45", [15, 45, 1]);
     bench_case(c, "15x45", [15, 45, 1], [false; 3]);
     bench_case(c, "15x45-periodic-x", [15, 45, 1], [true, false, false]);
     bench_case(c, "60x180", [60, 180, 1], [false; 3]);
@@ -129,7 +174,9 @@ fn benches(c: &mut Criterion) {
 
 criterion_group! {
     name = pressure;
+    // Criterion's plotting backend panics here (no fonts): numbers only.
     config = Criterion::default()
+        .without_plots()
         .sample_size(20)
         .warm_up_time(std::time::Duration::from_millis(500))
         .measurement_time(std::time::Duration::from_secs(2));

@@ -66,6 +66,11 @@ pub(super) fn best_order(
     }
     best
 }
+/// Below this many band entries per half (`rows × (b + 1)`) the two halves
+/// are factored and substituted one after the other on the calling thread:
+/// waking a second thread costs more than it saves. Either way the same
+/// arithmetic runs, so the result does not depend on it.
+const PARALLEL_HALF_ENTRIES: usize = 2 * 1024;
 
 /// Direct solver: band Cholesky factorisation `A = L Lᵀ`, then forward and
 /// back substitution, exact up to round-off. The factor is kept: a call
@@ -80,6 +85,21 @@ pub(super) fn best_order(
 /// `N (b + 1)` values, work ≈ N b² flops for the factorisation and 4 N b per
 /// solve.
 ///
+/// **Two halves and a separator.** When the slowest axis of that ordering
+/// has at least 3 layers of cells and no wrap-around coupling, its middle
+/// layer `S` (s = b cells) separates the grid into a lower half `A` and an
+/// upper half `B` that do not couple. Ordered `A, B, S` (B numbered
+/// backwards, so that both halves end at the layer next to `S`), the factor
+/// is block-arrow shaped: `L = [L_A 0 0; 0 L_B 0; W_Aᵀ W_Bᵀ L_S]` with
+/// `W_X = L_X⁻¹ A_XS` and `L_S L_Sᵀ = A_SS − W_Aᵀ W_A − W_Bᵀ W_B` (dense,
+/// s × s). `A_XS` touches only the last s rows of `X`, so `W_X` is an
+/// s × s block found from the trailing s × s triangle of `L_X`. The two
+/// band factorisations and substitutions are independent and run on two
+/// threads (rayon). The split depends on the grid only, never on the thread
+/// count, so results are bit-identical whatever the number of threads. The
+/// extra work is ≈ 2 s³ flops per factorisation and 4 s² per solve, small
+/// beside N b² and 4 N b.
+///
 /// The initial guess is ignored. After the solve the true residual is
 /// computed; if it exceeds the tolerance, up to `max_refinements` steps of
 /// iterative refinement are made. Singular matrices (pure Neumann without a
@@ -89,16 +109,107 @@ pub struct BandedCholesky {
     /// Iterative-refinement steps allowed when the residual of the direct
     /// solve exceeds the tolerance (default 2).
     pub max_refinements: usize,
-    band: Vec<f64>,
-    /// `perm[c]`: position of cell `c` in the band ordering.
+    /// Bandwidth b of both halves.
+    bw: usize,
+    /// The band factors of the halves `A` and `B` (B empty without a split).
+    halves: [BandFactor; 2],
+    /// Separator layer: couplings to the halves and the Schur factor.
+    separator: Separator,
+    /// `perm[c]`: position of cell `c` in the order `A, B, S`.
     perm: Vec<usize>,
-    perm_key: Option<([usize; 3], [usize; 3])>,
-    /// Diagonal of the permuted matrix (for the relative pivot test).
-    diag: Vec<f64>,
+    perm_key: Option<([usize; 3], [usize; 3], usize)>,
     y: Vec<f64>,
     r: Vec<f64>,
-    /// The matrix whose factor `band` holds.
+    /// The matrix whose factor is held.
     factored: Option<StencilMatrix>,
+}
+
+/// One band factor: column `k` holds rows `k ..= k + b` of `L`.
+#[derive(Clone, Debug, Default)]
+struct BandFactor {
+    rows: usize,
+    band: Vec<f64>,
+    /// Diagonal of the matrix (for the relative pivot test).
+    diag: Vec<f64>,
+}
+
+impl BandFactor {
+    /// Rows of the block.
+    fn len(&self) -> usize {
+        self.rows
+    }
+
+    /// Zeroed storage for `len` rows of bandwidth `bw`.
+    fn reset(&mut self, len: usize, bw: usize) {
+        self.rows = len;
+        self.band.clear();
+        self.band.resize(len * (bw + 1), 0.0);
+        self.diag.clear();
+    }
+}
+
+/// The separator layer of s cells (s = 0: no split).
+#[derive(Clone, Debug, Default)]
+struct Separator {
+    size: usize,
+    /// `A_XS` of each half, then (after factoring) `W_X`: s × s row-major,
+    /// row k = the half's row `len − s + k`, column = separator cell.
+    couplings: [Vec<f64>; 2],
+    /// `A_SS`, then its Schur complement's Cholesky factor (row-major,
+    /// lower triangle).
+    dense: Vec<f64>,
+    /// Diagonal of `A_SS` (for the relative pivot test).
+    diag: Vec<f64>,
+}
+
+/// Where the grid is cut: the layers along the slowest axis of the band
+/// ordering, `layer` cells each (the bandwidth).
+#[derive(Clone, Copy, Debug)]
+struct Split {
+    layer: usize,
+    middle: usize,
+}
+
+impl Split {
+    /// The split of a grid of `len` cells ordered with `strides`, or `None`
+    /// when the slowest axis has fewer than 3 layers, wraps around, or is
+    /// not what sets the bandwidth.
+    fn of(
+        n: [usize; 3],
+        pattern: CouplingPattern,
+        order: [usize; 3],
+        strides: [usize; 3],
+        bw: usize,
+    ) -> Option<Split> {
+        let slow = *order.iter().rev().find(|&&axis| n[axis] >= 2)?;
+        let usable = n[slow] >= 3 && pattern[slow][0] && !pattern[slow][1];
+        (usable && strides[slow] == bw).then_some(Split {
+            layer: bw,
+            middle: n[slow] / 2,
+        })
+    }
+
+    /// Rows of the halves `A` and `B` and of the separator.
+    fn sizes(split: Option<Split>, len: usize) -> [usize; 3] {
+        match split {
+            None => [len, 0, 0],
+            Some(s) => {
+                let lower = s.middle * s.layer;
+                [lower, len - lower - s.layer, s.layer]
+            }
+        }
+    }
+
+    /// Position in the order `A, B, S` of band index `p` (B backwards).
+    fn position(split: Option<Split>, len: usize, p: usize) -> usize {
+        let Some(s) = split else { return p };
+        let [a, b, _] = Self::sizes(split, len);
+        match (p / s.layer).cmp(&s.middle) {
+            std::cmp::Ordering::Less => p,
+            std::cmp::Ordering::Greater => a + (len - 1 - p),
+            std::cmp::Ordering::Equal => a + b + (p - s.middle * s.layer),
+        }
+    }
 }
 
 impl Default for BandedCholesky {
@@ -114,10 +225,11 @@ impl BandedCholesky {
     pub fn new() -> Self {
         BandedCholesky {
             max_refinements: 2,
-            band: Vec::new(),
+            bw: 0,
+            halves: Default::default(),
+            separator: Separator::default(),
             perm: Vec::new(),
             perm_key: None,
-            diag: Vec::new(),
             y: Vec::new(),
             r: Vec::new(),
             factored: None,
@@ -146,11 +258,10 @@ impl BandedCholesky {
         cells * (b * b + 4.0 * b + 1.0)
     }
 
-    /// Solves `L Lᵀ y = y` in place in the band ordering.
-    pub(super) fn substitute(band: &[f64], bw: usize, y: &mut [f64]) {
+    /// Solves `L y = y` in place (band storage, column-oriented).
+    pub(super) fn forward(band: &[f64], bw: usize, y: &mut [f64]) {
         let w = bw + 1;
         let len = y.len();
-        // Forward, column-oriented: L y = b.
         for k in 0..len {
             let col = &band[k * w..(k + 1) * w];
             let m = w.min(len - k);
@@ -160,7 +271,12 @@ impl BandedCholesky {
                 *yi -= l * yk;
             }
         }
-        // Backward, row-oriented on Lᵀ: Lᵀ x = y.
+    }
+
+    /// Solves `Lᵀ x = y` in place (band storage, row-oriented on `Lᵀ`).
+    pub(super) fn backward(band: &[f64], bw: usize, y: &mut [f64]) {
+        let w = bw + 1;
+        let len = y.len();
         for k in (0..len).rev() {
             let col = &band[k * w..(k + 1) * w];
             let m = w.min(len - k);
@@ -172,13 +288,9 @@ impl BandedCholesky {
     /// In-place right-looking band Cholesky on column storage (column `k`
     /// holds rows `k ..= k + b`); `diag` is the diagonal of A for the
     /// relative pivot test. `Err(k)` for a bad pivot in band row `k`.
-    pub(super) fn factor(
-        band: &mut [f64],
-        diag: &[f64],
-        bw: usize,
-        len: usize,
-    ) -> Result<(), usize> {
+    pub(super) fn factor(band: &mut [f64], diag: &[f64], bw: usize) -> Result<(), usize> {
         let w = bw + 1;
+        let len = diag.len();
         for k in 0..len {
             let (head, tail) = band.split_at_mut((k + 1) * w);
             let ck = &mut head[k * w..];
@@ -206,8 +318,8 @@ impl BandedCholesky {
         Ok(())
     }
 
-    /// Renumbers and factors `a` into `band` (the ordering with the
-    /// smallest bandwidth for its coupling pattern).
+    /// Renumbers `a` (the ordering with the smallest bandwidth for its
+    /// coupling pattern, then the split) and factors it.
     fn factor_matrix(&mut self, a: &StencilMatrix) -> Result<(), SolveError> {
         let len = a.len();
         // Coupling pattern → ordering and bandwidth.
@@ -227,35 +339,114 @@ impl BandedCholesky {
             });
         }
         let (order, bw, strides) = best_order(a.n, pattern);
-        let w = bw + 1;
-        if len.saturating_mul(w) > Self::MAX_BAND_ENTRIES {
+        if len.saturating_mul(bw + 1) > Self::MAX_BAND_ENTRIES {
             return Err(SolveError::TooLarge {
                 cells: len,
                 bandwidth: bw,
             });
         }
-        if self.perm_key != Some((a.n, order)) {
+        let split = Split::of(a.n, pattern, order, strides, bw);
+        if self.perm_key != Some((a.n, order, bw)) {
             self.perm.clear();
             let [nx, ny, nz] = a.n;
             for k in 0..nz {
                 for j in 0..ny {
                     for i in 0..nx {
-                        self.perm
-                            .push(i * strides[0] + j * strides[1] + k * strides[2]);
+                        let p = i * strides[0] + j * strides[1] + k * strides[2];
+                        self.perm.push(Split::position(split, len, p));
                     }
                 }
             }
-            self.perm_key = Some((a.n, order));
+            self.perm_key = Some((a.n, order, bw));
         }
+        self.bw = bw;
+        self.assemble(a, Split::sizes(split, len));
+        let cell_of = |perm: &[usize], position: usize| {
+            perm.iter().position(|&p| p == position).unwrap_or(position)
+        };
+        let [rows_a, rows_b, _] = Split::sizes(split, len);
+        let diagonals = [
+            &self.halves[0].diag,
+            &self.halves[1].diag,
+            &self.separator.diag,
+        ];
+        for (diag, offset) in diagonals.into_iter().zip([0, rows_a, rows_a + rows_b]) {
+            if let Some(i) = diag.iter().position(|d| !(d.is_finite() && *d > 0.0)) {
+                if !diag[i].is_finite() {
+                    return Err(SolveError::NonFinite);
+                }
+                let row = cell_of(&self.perm, offset + i);
+                return Err(SolveError::NotPositiveDefinite { row });
+            }
+        }
+        let parallel = self.parallel();
+        let [ha, hb] = &mut self.halves;
+        let factored = both(
+            parallel,
+            || Self::factor(&mut ha.band, &ha.diag, bw),
+            || Self::factor(&mut hb.band, &hb.diag, bw),
+        );
+        let factored = [factored.0, factored.1];
+        for ((result, half), offset) in factored.into_iter().zip(&self.halves).zip([0, rows_a]) {
+            if let Err(i) = result {
+                if half.band.iter().any(|v| !v.is_finite()) {
+                    return Err(SolveError::NonFinite);
+                }
+                let row = cell_of(&self.perm, offset + i);
+                return Err(SolveError::NotPositiveDefinite { row });
+            }
+        }
+        if let Err(k) = self.separator.factor(&self.halves, bw) {
+            if self.separator.dense.iter().any(|v| !v.is_finite()) {
+                return Err(SolveError::NonFinite);
+            }
+            let row = cell_of(&self.perm, rows_a + rows_b + k);
+            return Err(SolveError::NotPositiveDefinite { row });
+        }
+        Ok(())
+    }
+}
 
-        // Assemble the lower band by columns: column j holds rows
-        // j ..= j + b, entry (i, j) at `j w + i − j`.
-        let perm = &self.perm;
-        let band = &mut self.band;
-        band.clear();
-        band.resize(len * w, 0.0);
+impl BandedCholesky {
+    /// Cells in the separator layer of the last factorisation (0: none).
+    #[cfg(test)]
+    pub(super) fn separator_cells(&self) -> usize {
+        self.separator.size
+    }
+
+    /// Whether the halves are worth two threads.
+    fn parallel(&self) -> bool {
+        let [a, b] = &self.halves;
+        b.len() > 0 && a.len() * (self.bw + 1) >= PARALLEL_HALF_ENTRIES
+    }
+
+    /// Scatters `a` into the bands of the halves, the separator block and
+    /// the couplings between them, at the positions of `self.perm`.
+    fn assemble(&mut self, a: &StencilMatrix, sizes: [usize; 3]) {
+        let (bw, w) = (self.bw, self.bw + 1);
+        let [rows_a, rows_b, s] = sizes;
+        self.halves[0].reset(rows_a, bw);
+        self.halves[1].reset(rows_b, bw);
+        self.separator.reset(s);
+        // Block (0: A, 1: B, 2: separator) and row within it.
+        let locate = |p: usize| match p {
+            p if p < rows_a => (0, p),
+            p if p < rows_a + rows_b => (1, p - rows_a),
+            p => (2, p - rows_a - rows_b),
+        };
+        let (halves, sep, perm) = (&mut self.halves, &mut self.separator, &self.perm);
+        // Adds `v` at (i, j) and, off the diagonal, at (j, i).
+        let mut add = |i: usize, j: usize, v: f64| {
+            let ((bi, ri), (bj, rj)) = (locate(i.max(j)), locate(i.min(j)));
+            match (bi, bj) {
+                (2, 2) => sep.dense[ri * s + rj] += v,
+                (2, h) => sep.couplings[h][(rj + s - halves[h].len()) * s + ri] += v,
+                (h, g) if h == g => halves[h].band[rj * w + ri - rj] += v,
+                _ => unreachable!("the separator layer uncouples the halves"),
+            }
+        };
         for (c, &d) in a.diag.iter().enumerate() {
-            band[perm[c] * w] = d;
+            add(perm[c], perm[c], d);
         }
         for axis in 0..3 {
             let off = &a.off[axis];
@@ -264,36 +455,142 @@ impl BandedCholesky {
                     if v == 0.0 {
                         continue;
                     }
-                    let i = perm[c];
-                    let j = perm[partner + (c - lo)];
-                    if i == j {
-                        band[i * w] += 2.0 * v;
-                    } else {
-                        let (row, col) = if i > j { (i, j) } else { (j, i) };
-                        band[col * w + row - col] += v;
-                    }
+                    let (i, j) = (perm[c], perm[partner + (c - lo)]);
+                    // A one-cell periodic axis couples a cell to itself on
+                    // both sides.
+                    add(i, j, if i == j { 2.0 * v } else { v });
                 }
             });
         }
-        self.diag.clear();
-        self.diag.extend(band.iter().step_by(w));
-        for (i, &d) in self.diag.iter().enumerate() {
-            if !d.is_finite() {
-                return Err(SolveError::NonFinite);
+        for half in halves.iter_mut() {
+            half.diag = half.band.iter().step_by(w).copied().collect();
+        }
+        sep.diag = (0..s).map(|k| sep.dense[k * s + k]).collect();
+    }
+
+    /// Solves `A x = y` in place, `y` in the order `A, B, S`.
+    fn substitute(&self, y: &mut [f64]) {
+        let bw = self.bw;
+        let [ha, hb] = &self.halves;
+        let (ya, rest) = y.split_at_mut(ha.len());
+        let (yb, ys) = rest.split_at_mut(hb.len());
+        let parallel = self.parallel();
+        both(
+            parallel,
+            || Self::forward(&ha.band, bw, ya),
+            || Self::forward(&hb.band, bw, yb),
+        );
+        let sep = &self.separator;
+        let s = sep.size;
+        if s > 0 {
+            let tails = [&mut ya[ha.len() - s..], &mut yb[hb.len() - s..]];
+            for (coupling, tail) in sep.couplings.iter().zip(&tails) {
+                for (row, &t) in coupling.chunks_exact(s).zip(tail.iter()) {
+                    for (x, &wv) in ys.iter_mut().zip(row) {
+                        *x -= wv * t;
+                    }
+                }
             }
-            if d <= 0.0 {
-                let row = perm.iter().position(|&p| p == i).unwrap_or(i);
-                return Err(SolveError::NotPositiveDefinite { row });
+            sep.solve(ys);
+            for (coupling, tail) in sep.couplings.iter().zip(tails) {
+                for (row, t) in coupling.chunks_exact(s).zip(tail.iter_mut()) {
+                    *t -= dot(row, ys);
+                }
             }
         }
-        if let Err(i) = Self::factor(band, &self.diag, bw, len) {
-            if band.iter().any(|v| !v.is_finite()) {
-                return Err(SolveError::NonFinite);
+        both(
+            parallel,
+            || Self::backward(&ha.band, bw, ya),
+            || Self::backward(&hb.band, bw, yb),
+        );
+    }
+}
+
+impl Separator {
+    /// Zeroed storage for a separator of `size` cells.
+    fn reset(&mut self, size: usize) {
+        self.size = size;
+        for block in self.couplings.iter_mut().chain([&mut self.dense]) {
+            block.clear();
+            block.resize(size * size, 0.0);
+        }
+        self.diag.clear();
+    }
+
+    /// With both halves factored: `W_X = T_X⁻¹ A_XS` (`T_X` the trailing
+    /// s × s triangle of `L_X`) in place of the couplings, then the Cholesky
+    /// factor of `A_SS − W_Aᵀ W_A − W_Bᵀ W_B`. `Err(k)` for a bad pivot in
+    /// separator row `k`.
+    fn factor(&mut self, halves: &[BandFactor; 2], bw: usize) -> Result<(), usize> {
+        let s = self.size;
+        let w = bw + 1;
+        for (coupling, half) in self.couplings.iter_mut().zip(halves) {
+            let first = half.len() - s;
+            // Forward substitution on all s columns at once, row by row.
+            for k in 0..s {
+                let col = &half.band[(first + k) * w..(first + k + 1) * w];
+                let (done, rest) = coupling.split_at_mut((k + 1) * s);
+                let row_k = &mut done[k * s..];
+                let inv = 1.0 / col[0];
+                row_k.iter_mut().for_each(|x| *x *= inv);
+                for (row_i, &l) in rest.chunks_exact_mut(s).zip(&col[1..s - k]) {
+                    for (x, &y) in row_i.iter_mut().zip(row_k.iter()) {
+                        *x -= l * y;
+                    }
+                }
             }
-            let row = perm.iter().position(|&p| p == i).unwrap_or(i);
-            return Err(SolveError::NotPositiveDefinite { row });
+            for i in 0..s {
+                for j in 0..=i {
+                    let product: f64 = (0..s)
+                        .map(|k| coupling[k * s + i] * coupling[k * s + j])
+                        .sum();
+                    self.dense[i * s + j] -= product;
+                }
+            }
+        }
+        let l = &mut self.dense;
+        for j in 0..s {
+            let pivot = l[j * s + j] - dot(&l[j * s..j * s + j], &l[j * s..j * s + j]);
+            if pivot.is_nan() || pivot <= BAND_PIVOT_TOL * self.diag[j] {
+                return Err(j);
+            }
+            let root = pivot.sqrt();
+            l[j * s + j] = root;
+            for i in j + 1..s {
+                let (upper, lower) = l.split_at_mut(i * s);
+                let lij = (lower[j] - dot(&lower[..j], &upper[j * s..j * s + j])) / root;
+                lower[j] = lij;
+            }
         }
         Ok(())
+    }
+
+    /// Solves `L_S L_Sᵀ x = y` in place.
+    fn solve(&self, y: &mut [f64]) {
+        let (s, l) = (self.size, &self.dense);
+        for i in 0..s {
+            y[i] = (y[i] - dot(&l[i * s..i * s + i], &y[..i])) / l[i * s + i];
+        }
+        for i in (0..s).rev() {
+            let mut v = y[i];
+            for k in i + 1..s {
+                v -= l[k * s + i] * y[k];
+            }
+            y[i] = v / l[i * s + i];
+        }
+    }
+}
+
+/// Runs `fa` and `fb`, on two threads when `parallel`.
+fn both<A: Send, B: Send>(
+    parallel: bool,
+    fa: impl FnOnce() -> A + Send,
+    fb: impl FnOnce() -> B + Send,
+) -> (A, B) {
+    if parallel {
+        rayon::join(fa, fb)
+    } else {
+        (fa(), fb())
     }
 }
 
@@ -326,33 +623,33 @@ impl PressureSolver for BandedCholesky {
             self.factor_matrix(a)?;
             self.factored = Some(a.clone());
         }
-        let (perm, band) = (&self.perm, &self.band);
-        let bw = band.len() / len - 1;
 
         // Solve, then check and refine.
-        self.y.resize(len, 0.0);
+        let mut y = std::mem::take(&mut self.y);
+        y.resize(len, 0.0);
         self.r.resize(len, 0.0);
-        for (c, &p) in perm.iter().enumerate() {
-            self.y[p] = b[c];
+        for (c, &p) in self.perm.iter().enumerate() {
+            y[p] = b[c];
         }
-        Self::substitute(band, bw, &mut self.y);
-        for (xc, &p) in x.iter_mut().zip(perm.iter()) {
-            *xc = self.y[p];
+        self.substitute(&mut y);
+        for (xc, &p) in x.iter_mut().zip(self.perm.iter()) {
+            *xc = y[p];
         }
         let mut iterations = 1;
         let mut rnorm = a.residual(b, x, &mut self.r);
         let target = tolerance * bnorm;
         while rnorm > target && iterations <= self.max_refinements && rnorm.is_finite() {
-            for (c, &p) in perm.iter().enumerate() {
-                self.y[p] = self.r[c];
+            for (c, &p) in self.perm.iter().enumerate() {
+                y[p] = self.r[c];
             }
-            Self::substitute(band, bw, &mut self.y);
-            for (xc, &p) in x.iter_mut().zip(perm.iter()) {
-                *xc += self.y[p];
+            self.substitute(&mut y);
+            for (xc, &p) in x.iter_mut().zip(self.perm.iter()) {
+                *xc += y[p];
             }
             iterations += 1;
             rnorm = a.residual(b, x, &mut self.r);
         }
+        self.y = y;
         if !rnorm.is_finite() {
             return Err(SolveError::NonFinite);
         }
