@@ -11,9 +11,10 @@ const EDPM: &str = env!("CARGO_BIN_EXE_edpm");
 const ROOT: &str = env!("CARGO_MANIFEST_DIR");
 
 /// Fields of summary.json that measure the machine, not the run.
-const TIMING: [&str; 6] = [
+const TIMING: [&str; 7] = [
     "cpu_seconds",
     "wall_seconds",
+    "wall_seconds_by_part",
     "events_per_cpu_second",
     "gas_cpu_seconds",
     "solver_cpu_seconds",
@@ -67,9 +68,41 @@ fn summary(dir: &Path) -> serde_json::Value {
     v
 }
 
+/// The wall-clock parts in `summary.json` are disjoint intervals of the
+/// run: none negative, and with `other` they add up to `wall_seconds`. A
+/// gas run spends time in both gas parts, and every run in re-prediction.
+fn assert_wall_parts(dir: &Path, gas: bool) {
+    let text = std::fs::read_to_string(dir.join("summary.json")).expect("summary.json");
+    let v: serde_json::Value = serde_json::from_str(&text).expect("summary parses");
+    let part = |key: &str| v["wall_seconds_by_part"][key].as_f64().unwrap();
+    let keys = [
+        "gas_coupling",
+        "gas_solver",
+        "re_prediction",
+        "particle_motion",
+        "other",
+    ];
+    for key in keys {
+        assert!(part(key) >= 0.0, "{key} = {}", part(key));
+    }
+    let total: f64 = keys.iter().map(|k| part(k)).sum();
+    let wall = v["wall_seconds"].as_f64().unwrap();
+    // Round-off of five additions only.
+    assert!(
+        (total - wall).abs() <= 1e-9 * wall,
+        "{total} against {wall}"
+    );
+    assert!(part("re_prediction") > 0.0);
+    assert_eq!(part("gas_solver") > 0.0, gas);
+    assert_eq!(part("gas_coupling") > 0.0, gas);
+}
+
 fn assert_thread_independent(scenario: &str, t_end: &str, extra: &[&str]) {
     let one = run(scenario, t_end, 1, extra);
     let two = run(scenario, t_end, 2, extra);
+    let gas = scenario.contains("bed-jet");
+    assert_wall_parts(&one, gas);
+    assert_wall_parts(&two, gas);
     let state = |d: &Path| std::fs::read(d.join("final_state.bin")).expect("final_state.bin");
     let (a, b) = (state(&one), state(&two));
     assert!(!a.is_empty());

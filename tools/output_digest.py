@@ -41,7 +41,7 @@ SHORT = {
 }
 
 # Fields of summary.json that measure the machine, not the run.
-TIMING = {"cpu_seconds", "wall_seconds", "events_per_cpu_second",
+TIMING = {"cpu_seconds", "wall_seconds", "wall_seconds_by_part", "events_per_cpu_second",
           "gas_cpu_seconds", "solver_cpu_seconds", "log_bytes"}
 
 

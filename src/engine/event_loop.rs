@@ -175,8 +175,16 @@ impl<Q: EventQueue> Engine<Q> {
     #[inline]
     pub(super) fn ensure_predicted(&mut self) {
         if self.needs_prediction {
+            let start = std::time::Instant::now();
             self.predict_all();
+            self.prediction_wall_seconds += start.elapsed().as_secs_f64();
         }
+    }
+
+    /// Wall-clock time this process has spent re-predicting every particle
+    /// (after kicks and flow-step ends), s.
+    pub fn prediction_wall_seconds(&self) -> f64 {
+        self.prediction_wall_seconds
     }
 
     /// Ends a flow step: synchronises all particles, checks the collapse

@@ -268,6 +268,9 @@ pub struct Engine<Q: EventQueue> {
     /// Round-off carried by `time_origin` (Neumaier summation), so that many
     /// flow steps add up to the exact end time.
     time_origin_error: f64,
+    /// Wall-clock time spent re-predicting every particle (s): timing
+    /// only, never part of a result or a state.
+    prediction_wall_seconds: f64,
     needs_prediction: bool,
     /// Whether every velocity change since the last [`Engine::predict_all`]
     /// outside events was the same for all particles ([`Engine::kick_all`]):
@@ -428,6 +431,7 @@ impl<Q: EventQueue> Engine<Q> {
             time_origin_error: 0.0,
             needs_prediction: true,
             kicks_uniform: false,
+            prediction_wall_seconds: 0.0,
             pending_reinsert: Vec::new(),
             counters: Counters::default(),
             records: Vec::new(),

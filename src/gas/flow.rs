@@ -46,6 +46,9 @@ pub struct GasRun {
     /// Every slot's particle at the start of the current step (a buffer
     /// kept between steps).
     views: Vec<Option<ParticleView>>,
+    /// Wall-clock time in the gas solver in this process (s): timing only,
+    /// not restored from restart files.
+    pub solver_wall_seconds: f64,
 }
 
 /// Totals over a run, for `summary.json`.
@@ -123,6 +126,7 @@ impl GasRun {
             interval: IntervalStats::default(),
             deferred: Vec::new(),
             views: Vec::new(),
+            solver_wall_seconds: 0.0,
         }
     }
 
@@ -181,9 +185,10 @@ impl GasRun {
         self.views
             .extend((0..engine.slots()).map(|i| engine.particle(i)));
         self.coupling.prepare(&mut self.gas, &self.views, dt);
-        let solver_start = crate::timing::cpu_time();
+        let (solver_start, solver_wall) = (crate::timing::cpu_time(), std::time::Instant::now());
         let stats = self.gas.step(dt)?;
         self.totals.solver_cpu_seconds += crate::timing::cpu_time() - solver_start;
+        self.solver_wall_seconds += solver_wall.elapsed().as_secs_f64();
         let kicks = self.coupling.kicks(&self.gas, &self.views, dt);
         if half {
             let halves: Vec<DVec3> = kicks.iter().map(|k| 0.5 * *k).collect();

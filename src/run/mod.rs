@@ -99,6 +99,23 @@ pub fn run_cli(
     Ok(())
 }
 
+/// Wall-clock time of a run's parts (s), measured in this process.
+#[derive(Clone, Copy, Debug, Default, serde::Serialize)]
+pub struct WallSecondsByPart {
+    /// Particle views, gas fraction, drag coefficients and drag sink,
+    /// kicks (`gas::coupling`).
+    pub gas_coupling: f64,
+    /// The gas solver's flow step, pressure solves included.
+    pub gas_solver: f64,
+    /// Re-predicting every particle after kicks and flow-step ends.
+    pub re_prediction: f64,
+    /// The rest of the particle motion: events, or soft steps.
+    pub particle_motion: f64,
+    /// Everything else: setup, recorders and output files, flow-step ends
+    /// and checks.
+    pub other: f64,
+}
+
 /// What a run reports in `summary.json`.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct Summary {
@@ -139,6 +156,9 @@ pub struct Summary {
     pub kinetic_energy_rotational: f64,
     pub cpu_seconds: f64,
     pub wall_seconds: f64,
+    /// Where the wall-clock time went (s), for speed work and thread
+    /// scaling.
+    pub wall_seconds_by_part: WallSecondsByPart,
     pub events_per_cpu_second: f64,
     /// Particles that could not be inserted at the inlet for lack of room
     /// (waiting at the end of the run).
@@ -315,6 +335,10 @@ struct FlowLoop<'a, Q: EventQueue> {
     restarts: Option<restart::RestartWriter>,
     /// Anything that acts at flow steps: forces (kicks) or inlet feeding.
     forces: bool,
+    /// Wall-clock time in the gas step and kicks, and in advancing the
+    /// particles (s).
+    gas_wall_seconds: f64,
+    advance_wall_seconds: f64,
 }
 
 impl<Q: EventQueue> FlowLoop<'_, Q> {
@@ -325,6 +349,22 @@ impl<Q: EventQueue> FlowLoop<'_, Q> {
         }
         self.engine.kick_all(dv);
         Ok(())
+    }
+
+    /// The parts of a run that took `wall_seconds` (s) in all.
+    fn wall_seconds_by_part(&self, wall_seconds: f64) -> WallSecondsByPart {
+        let gas_solver = self.gas.as_ref().map_or(0.0, |g| g.solver_wall_seconds);
+        let re_prediction = self.engine.prediction_wall_seconds();
+        let mut parts = WallSecondsByPart {
+            gas_coupling: self.gas_wall_seconds - gas_solver,
+            gas_solver,
+            re_prediction,
+            particle_motion: self.advance_wall_seconds - re_prediction,
+            other: 0.0,
+        };
+        parts.other = wall_seconds
+            - (parts.gas_coupling + parts.gas_solver + parts.re_prediction + parts.particle_motion);
+        parts
     }
 
     /// Flow step `step` (0-based) of `dt` (s); `last`: the run's last.
@@ -342,7 +382,10 @@ impl<Q: EventQueue> FlowLoop<'_, Q> {
             // Drag, pressure gradient and gravity: one kick, or its first
             // half (second order; the second follows the flight).
             let half = s.time.splitting == Splitting::SecondOrder;
-            if let Err(e) = g.step_split(&mut self.engine, dt, half) {
+            let start = Instant::now();
+            let stepped = g.step_split(&mut self.engine, dt, half);
+            self.gas_wall_seconds += start.elapsed().as_secs_f64();
+            if let Err(e) = stepped {
                 anyhow::bail!(
                     "{}: gas phase: {e}; {}",
                     s.name,
@@ -368,7 +411,9 @@ impl<Q: EventQueue> FlowLoop<'_, Q> {
                 diagnose::particle_failure(s, &self.engine, self.gas.as_ref(), &bad, &what)
             );
         }
+        let start = Instant::now();
         self.engine.advance(dt);
+        self.advance_wall_seconds += start.elapsed().as_secs_f64();
         if let Some(stall) = self.engine.stall() {
             anyhow::bail!("{}: {}", s.name, diagnose::stall_message(s, stall));
         }
@@ -408,7 +453,9 @@ impl<Q: EventQueue> FlowLoop<'_, Q> {
         }
         if s.time.splitting == Splitting::SecondOrder {
             if let Some(g) = self.gas.as_mut() {
+                let start = Instant::now();
                 g.finish_kicks(&mut self.engine);
+                self.gas_wall_seconds += start.elapsed().as_secs_f64();
                 // The second half kicks, like the first: an event log
                 // records the velocities they leave.
                 for r in self.recorders.iter_mut() {
@@ -500,6 +547,8 @@ fn simulate<Q: EventQueue>(
         recorders,
         restarts,
         forces,
+        gas_wall_seconds: 0.0,
+        advance_wall_seconds: 0.0,
     };
     let outcome = (first_step..plan.steps)
         .try_for_each(|step| run.step(step, plan.dt(step), step + 1 == plan.steps));
@@ -511,6 +560,7 @@ fn simulate<Q: EventQueue>(
         r.finish(&mut run.engine, &mut end)?;
     }
     let cpu_seconds = crate::timing::cpu_time() - cpu_start;
+    let wall_seconds = wall_start.elapsed().as_secs_f64();
     let engine = &run.engine;
     let (ke_t, ke_r) = engine.kinetic_energy();
     let events = engine.counters.pair_collisions + engine.counters.wall_collisions;
@@ -544,7 +594,8 @@ fn simulate<Q: EventQueue>(
         kinetic_energy_translational: ke_t,
         kinetic_energy_rotational: ke_r,
         cpu_seconds,
-        wall_seconds: wall_start.elapsed().as_secs_f64(),
+        wall_seconds,
+        wall_seconds_by_part: run.wall_seconds_by_part(wall_seconds),
         events_per_cpu_second: events as f64 / cpu_seconds.max(1e-9),
         inlet_backlog: run.feeder.as_ref().map_or(0, |f| f.backlog(s))
             + engine.pending_reinsertions(),
