@@ -335,10 +335,15 @@ struct FlowLoop<'a, Q: EventQueue> {
     restarts: Option<restart::RestartWriter>,
     /// Anything that acts at flow steps: forces (kicks) or inlet feeding.
     forces: bool,
-    /// Wall-clock time in the gas step and kicks, and in advancing the
-    /// particles (s).
-    gas_wall_seconds: f64,
-    advance_wall_seconds: f64,
+    clock: WallClock,
+}
+
+/// Wall-clock time (s) of a run in the gas step and kicks, and in
+/// advancing the particles.
+#[derive(Default)]
+struct WallClock {
+    gas: f64,
+    advance: f64,
 }
 
 impl<Q: EventQueue> FlowLoop<'_, Q> {
@@ -356,10 +361,10 @@ impl<Q: EventQueue> FlowLoop<'_, Q> {
         let gas_solver = self.gas.as_ref().map_or(0.0, |g| g.solver_wall_seconds);
         let re_prediction = self.engine.prediction_wall_seconds();
         let mut parts = WallSecondsByPart {
-            gas_coupling: self.gas_wall_seconds - gas_solver,
+            gas_coupling: self.clock.gas - gas_solver,
             gas_solver,
             re_prediction,
-            particle_motion: self.advance_wall_seconds - re_prediction,
+            particle_motion: self.clock.advance - re_prediction,
             other: 0.0,
         };
         parts.other = wall_seconds
@@ -384,7 +389,7 @@ impl<Q: EventQueue> FlowLoop<'_, Q> {
             let half = s.time.splitting == Splitting::SecondOrder;
             let start = Instant::now();
             let stepped = g.step_split(&mut self.engine, dt, half);
-            self.gas_wall_seconds += start.elapsed().as_secs_f64();
+            self.clock.gas += start.elapsed().as_secs_f64();
             if let Err(e) = stepped {
                 anyhow::bail!(
                     "{}: gas phase: {e}; {}",
@@ -413,7 +418,7 @@ impl<Q: EventQueue> FlowLoop<'_, Q> {
         }
         let start = Instant::now();
         self.engine.advance(dt);
-        self.advance_wall_seconds += start.elapsed().as_secs_f64();
+        self.clock.advance += start.elapsed().as_secs_f64();
         if let Some(stall) = self.engine.stall() {
             anyhow::bail!("{}: {}", s.name, diagnose::stall_message(s, stall));
         }
@@ -455,7 +460,7 @@ impl<Q: EventQueue> FlowLoop<'_, Q> {
             if let Some(g) = self.gas.as_mut() {
                 let start = Instant::now();
                 g.finish_kicks(&mut self.engine);
-                self.gas_wall_seconds += start.elapsed().as_secs_f64();
+                self.clock.gas += start.elapsed().as_secs_f64();
                 // The second half kicks, like the first: an event log
                 // records the velocities they leave.
                 for r in self.recorders.iter_mut() {
@@ -538,17 +543,15 @@ fn simulate<Q: EventQueue>(
     let restarts = s.output.restart_interval.map(|interval| {
         restart::RestartWriter::new(out_dir, interval, engine.time(), run_id, fingerprint)
     });
-    let forces = s.domain.gravity != DVec3::ZERO || feeder.is_some() || gas.is_some();
     let mut run = FlowLoop {
         s,
         engine,
+        forces: s.domain.gravity != DVec3::ZERO || feeder.is_some() || gas.is_some(),
         gas,
         feeder,
         recorders,
         restarts,
-        forces,
-        gas_wall_seconds: 0.0,
-        advance_wall_seconds: 0.0,
+        clock: WallClock::default(),
     };
     let outcome = (first_step..plan.steps)
         .try_for_each(|step| run.step(step, plan.dt(step), step + 1 == plan.steps));
