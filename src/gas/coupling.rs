@@ -175,15 +175,11 @@ pub struct Coupling {
 }
 
 impl Coupling {
-    /// Maps the particles in `slots` (`None`: free slot) and caches their
+    /// Maps the particles in `views` (`None`: free slot) and caches their
     /// stencils; returns the gas fraction per cell (Eq. 33 or 37; planar
     /// beds with Hoomans' 2D-to-3D conversion), clamped at
     /// [`MIN_GAS_FRACTION`].
-    pub fn gas_fraction(
-        &mut self,
-        gas: &GasPhase,
-        slots: impl Iterator<Item = Option<ParticleView>>,
-    ) -> &[f64] {
+    pub fn gas_fraction(&mut self, gas: &GasPhase, views: &[Option<ParticleView>]) -> &[f64] {
         let grid = &gas.grid;
         let (cell_strides, _) = strides(grid);
         let hoomans = grid.planar && gas.config.planar_porosity == PlanarPorosity::Hoomans;
@@ -194,21 +190,22 @@ impl Coupling {
         };
         self.solids.clear();
         self.solids.resize(grid.cells(), 0.0);
-        let views: Vec<Option<ParticleView>> = slots.collect();
         let (porosity, planar) = (gas.config.porosity, gas.config.planar_porosity);
-        self.stencils.clear();
+        // Stencils kept from the last step are refilled in place (every
+        // fill sets each axis's length): no pass over the whole buffer.
         self.stencils.resize(views.len(), None);
         self.stencils
             .par_iter_mut()
             .zip(views.par_iter())
             .with_min_len(PARTICLES_PER_TASK)
-            .for_each(|(stencil, slot)| {
-                if let Some(p) = slot {
+            .for_each(|(stencil, slot)| match slot {
+                Some(p) => {
                     let side = mapping_side(grid, porosity, planar, 2.0 * p.radius);
                     stencil
-                        .insert(ParticleStencil::EMPTY)
+                        .get_or_insert(ParticleStencil::EMPTY)
                         .fill(grid, p.pos, side);
                 }
+                None => *stencil = None,
             });
         for (slot, stencil) in views.iter().zip(&self.stencils) {
             let (Some(p), Some(stencil)) = (slot, stencil) else {
@@ -243,7 +240,7 @@ impl Coupling {
     /// the drag sink and pressure share at the faces. `views` holds the
     /// engine's slots in order (`None` for free slots).
     pub fn prepare(&mut self, gas: &mut GasPhase, views: &[Option<ParticleView>], dt: f64) {
-        self.gas_fraction(gas, views.iter().copied());
+        self.gas_fraction(gas, views);
         let two_way = gas.config.two_way;
         if two_way {
             gas.set_gas_fraction(&self.gas_fraction);
@@ -524,7 +521,7 @@ mod tests {
             }
             let mut coupling = Coupling::default();
             let eps = coupling
-                .gas_fraction(&g, particles.iter().copied().map(Some))
+                .gas_fraction(&g, &particles.iter().copied().map(Some).collect::<Vec<_>>())
                 .to_vec();
             let reference = solids_fraction(
                 &grid,

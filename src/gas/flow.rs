@@ -133,10 +133,8 @@ impl GasRun {
     /// Gas fraction from the initial particles, before the first step.
     pub fn initialise(&mut self, engine: &impl ParticleDynamics) {
         if self.gas.config.two_way {
-            let eps = self
-                .coupling
-                .gas_fraction(&self.gas, engine.particles().map(Some))
-                .to_vec();
+            let views: Vec<_> = engine.particles().map(Some).collect();
+            let eps = self.coupling.gas_fraction(&self.gas, &views).to_vec();
             // Both levels: the first step sees no change of gas fraction.
             self.gas.set_gas_fraction(&eps);
             self.gas.set_gas_fraction(&eps);
