@@ -69,8 +69,9 @@ fn summary(dir: &Path) -> serde_json::Value {
 }
 
 /// The wall-clock parts in `summary.json` are disjoint intervals of the
-/// run: none negative, and with `other` they add up to `wall_seconds`. A
-/// gas run spends time in both gas parts, and every run in re-prediction.
+/// run: none negative (`other` is what they leave of `wall_seconds`, so it
+/// is negative if they overlap). A gas run spends time in both gas parts,
+/// and every run in re-prediction.
 fn assert_wall_parts(dir: &Path, gas: bool) {
     let text = std::fs::read_to_string(dir.join("summary.json")).expect("summary.json");
     let v: serde_json::Value = serde_json::from_str(&text).expect("summary parses");

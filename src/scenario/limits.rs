@@ -233,7 +233,7 @@ fn direct_band_entries(s: &Scenario, g: &GasConfig) -> Option<f64> {
             BandedCholesky::cost_estimate(g.cells, periodic) < 40.0 * n * n.sqrt()
         }
     };
-    direct.then(|| n * BandedCholesky::bandwidth(g.cells, periodic) as f64)
+    direct.then(|| BandedCholesky::storage_entries(g.cells, periodic))
 }
 
 /// Every superficial gas speed that enters the domain, with the field that

@@ -72,6 +72,12 @@ pub(super) fn best_order(
 /// arithmetic runs, so the result does not depend on it.
 const PARALLEL_HALF_ENTRIES: usize = 2 * 1024;
 
+/// Fewest layers along the slowest band axis for which the grid is split.
+/// The split adds ≈ 2.3 s³ flops (s = b cells per layer) to the N b² of
+/// the band factorisation, a share of ≈ 2.3 / layers: at most 10 % here.
+/// (A 16³ cube, 16 layers, would take 15 % longer on one thread.)
+pub(super) const MIN_SPLIT_LAYERS: usize = 24;
+
 /// Direct solver: band Cholesky factorisation `A = L Lᵀ`, then forward and
 /// back substitution, exact up to round-off. The factor is kept: a call
 /// with the same matrix as the last one (compared entry by entry, as the
@@ -86,7 +92,8 @@ const PARALLEL_HALF_ENTRIES: usize = 2 * 1024;
 /// solve.
 ///
 /// **Two halves and a separator.** When the slowest axis of that ordering
-/// has at least 3 layers of cells and no wrap-around coupling, its middle
+/// has at least [`MIN_SPLIT_LAYERS`] layers of cells and no wrap-around
+/// coupling, its middle
 /// layer `S` (s = b cells) separates the grid into a lower half `A` and an
 /// upper half `B` that do not couple. Ordered `A, B, S` (B numbered
 /// backwards, so that both halves end at the layer next to `S`), the factor
@@ -95,10 +102,10 @@ const PARALLEL_HALF_ENTRIES: usize = 2 * 1024;
 /// s × s). `A_XS` touches only the last s rows of `X`, so `W_X` is an
 /// s × s block found from the trailing s × s triangle of `L_X`. The two
 /// band factorisations and substitutions are independent and run on two
-/// threads (rayon). The split depends on the grid only, never on the thread
-/// count, so results are bit-identical whatever the number of threads. The
-/// extra work is ≈ 2 s³ flops per factorisation and 4 s² per solve, small
-/// beside N b² and 4 N b.
+/// threads (rayon), each with its `W_X` and `W_Xᵀ W_X`. The split depends
+/// on the grid only, never on the thread count, so results are
+/// bit-identical whatever the number of threads. The extra work is ≈ 2.3 s³
+/// flops per factorisation and 4 s² per solve, beside N b² and 4 N b.
 ///
 /// The initial guess is ignored. After the solve the true residual is
 /// computed; if it exceeds the tolerance, up to `max_refinements` steps of
@@ -109,6 +116,9 @@ pub struct BandedCholesky {
     /// Iterative-refinement steps allowed when the residual of the direct
     /// solve exceeds the tolerance (default 2).
     pub max_refinements: usize,
+    /// Fewest layers along the slowest band axis for the split (default
+    /// [`MIN_SPLIT_LAYERS`]).
+    pub(super) min_split_layers: usize,
     /// Bandwidth b of both halves.
     bw: usize,
     /// The band factors of the halves `A` and `B` (B empty without a split).
@@ -117,20 +127,26 @@ pub struct BandedCholesky {
     separator: Separator,
     /// `perm[c]`: position of cell `c` in the order `A, B, S`.
     perm: Vec<usize>,
-    perm_key: Option<([usize; 3], [usize; 3], usize)>,
+    perm_key: Option<([usize; 3], [usize; 3], usize, usize)>,
     y: Vec<f64>,
     r: Vec<f64>,
     /// The matrix whose factor is held.
     factored: Option<StencilMatrix>,
 }
 
-/// One band factor: column `k` holds rows `k ..= k + b` of `L`.
+/// One half: its band factor (column `k` holds rows `k ..= k + b` of
+/// `L`) and its coupling to the separator layer of s cells.
 #[derive(Clone, Debug, Default)]
 struct BandFactor {
     rows: usize,
     band: Vec<f64>,
     /// Diagonal of the matrix (for the relative pivot test).
     diag: Vec<f64>,
+    /// `A_XS`, then (after factoring) `W_X = T_X⁻¹ A_XS`: s × s row-major,
+    /// row k = the half's row `len − s + k`, column = separator cell.
+    coupling: Vec<f64>,
+    /// `W_Xᵀ W_X` (row-major, lower triangle).
+    gram: Vec<f64>,
 }
 
 impl BandFactor {
@@ -139,12 +155,56 @@ impl BandFactor {
         self.rows
     }
 
-    /// Zeroed storage for `len` rows of bandwidth `bw`.
-    fn reset(&mut self, len: usize, bw: usize) {
+    /// Zeroed storage for `len` rows of bandwidth `bw` and a separator of
+    /// `s` cells.
+    fn reset(&mut self, len: usize, bw: usize, s: usize) {
         self.rows = len;
-        self.band.clear();
-        self.band.resize(len * (bw + 1), 0.0);
+        for (block, size) in [
+            (&mut self.band, len * (bw + 1)),
+            (&mut self.coupling, s * s),
+            (&mut self.gram, s * s),
+        ] {
+            block.clear();
+            block.resize(size, 0.0);
+        }
         self.diag.clear();
+    }
+
+    /// Factors the band and, with a separator of `s` cells, turns the
+    /// coupling into `W_X` and forms `W_Xᵀ W_X`. `Err(k)` for a bad pivot
+    /// in row `k` of the half.
+    fn factor(&mut self, bw: usize, s: usize) -> Result<(), usize> {
+        BandedCholesky::factor(&mut self.band, &self.diag, bw)?;
+        if s == 0 {
+            return Ok(());
+        }
+        let w = bw + 1;
+        let first = self.rows - s;
+        let coupling = &mut self.coupling;
+        // W = T⁻¹ A_XS with T the trailing s × s triangle of L: forward
+        // substitution on all s columns at once, row by row.
+        for k in 0..s {
+            let col = &self.band[(first + k) * w..(first + k + 1) * w];
+            let (done, rest) = coupling.split_at_mut((k + 1) * s);
+            let row_k = &mut done[k * s..];
+            let inv = 1.0 / col[0];
+            row_k.iter_mut().for_each(|x| *x *= inv);
+            for (row_i, &l) in rest.chunks_exact_mut(s).zip(&col[1..s - k]) {
+                for (x, &y) in row_i.iter_mut().zip(row_k.iter()) {
+                    *x -= l * y;
+                }
+            }
+        }
+        // Wᵀ W, one row of W at a time (contiguous).
+        for row in coupling.chunks_exact(s) {
+            for (i, &wi) in row.iter().enumerate() {
+                let gram_row = &mut self.gram[i * s..i * s + i + 1];
+                for (g, &wj) in gram_row.iter_mut().zip(&row[..=i]) {
+                    *g += wi * wj;
+                }
+            }
+        }
+        Ok(())
     }
 }
 
@@ -152,9 +212,6 @@ impl BandFactor {
 #[derive(Clone, Debug, Default)]
 struct Separator {
     size: usize,
-    /// `A_XS` of each half, then (after factoring) `W_X`: s × s row-major,
-    /// row k = the half's row `len − s + k`, column = separator cell.
-    couplings: [Vec<f64>; 2],
     /// `A_SS`, then its Schur complement's Cholesky factor (row-major,
     /// lower triangle).
     dense: Vec<f64>,
@@ -171,18 +228,19 @@ struct Split {
 }
 
 impl Split {
-    /// The split of a grid of `len` cells ordered with `strides`, or `None`
-    /// when the slowest axis has fewer than 3 layers, wraps around, or is
-    /// not what sets the bandwidth.
+    /// The split of a grid ordered with `strides`, or `None` when the
+    /// slowest axis has fewer than `min_layers` (≥ 3) layers, wraps around,
+    /// or is not what sets the bandwidth.
     fn of(
         n: [usize; 3],
         pattern: CouplingPattern,
         order: [usize; 3],
         strides: [usize; 3],
         bw: usize,
+        min_layers: usize,
     ) -> Option<Split> {
         let slow = *order.iter().rev().find(|&&axis| n[axis] >= 2)?;
-        let usable = n[slow] >= 3 && pattern[slow][0] && !pattern[slow][1];
+        let usable = n[slow] >= min_layers.max(3) && pattern[slow][0] && !pattern[slow][1];
         (usable && strides[slow] == bw).then_some(Split {
             layer: bw,
             middle: n[slow] / 2,
@@ -219,12 +277,14 @@ impl Default for BandedCholesky {
 }
 
 impl BandedCholesky {
-    /// Largest band storage (entries) accepted: 2²⁸ values = 2 GiB.
+    /// Largest storage (entries: bands and separator blocks) accepted:
+    /// 2²⁸ values = 2 GiB.
     pub const MAX_BAND_ENTRIES: usize = 1 << 28;
 
     pub fn new() -> Self {
         BandedCholesky {
             max_refinements: 2,
+            min_split_layers: MIN_SPLIT_LAYERS,
             bw: 0,
             halves: Default::default(),
             separator: Separator::default(),
@@ -241,6 +301,14 @@ impl BandedCholesky {
     pub fn bandwidth(n: [usize; 3], periodic: [bool; 3]) -> usize {
         let pattern = std::array::from_fn(|axis| [n[axis] >= 2, periodic[axis] && n[axis] >= 2]);
         best_order(n, pattern).1
+    }
+
+    /// Values stored for a grid with all couplings present: the bands,
+    /// `N (b + 1)`, and at most five s × s separator blocks (s ≤ b).
+    pub fn storage_entries(n: [usize; 3], periodic: [bool; 3]) -> f64 {
+        let cells = (n[0] * n[1] * n[2]) as f64;
+        let b = Self::bandwidth(n, periodic) as f64;
+        cells * (b + 1.0) + 5.0 * b * b
     }
 
     /// Approximate flops of one solve including the factorisation,
@@ -339,14 +407,20 @@ impl BandedCholesky {
             });
         }
         let (order, bw, strides) = best_order(a.n, pattern);
-        if len.saturating_mul(bw + 1) > Self::MAX_BAND_ENTRIES {
+        let split = Split::of(a.n, pattern, order, strides, bw, self.min_split_layers);
+        let [rows_a, rows_b, s] = Split::sizes(split, len);
+        if len.saturating_mul(bw + 1).saturating_add(5 * s * s) > Self::MAX_BAND_ENTRIES {
             return Err(SolveError::TooLarge {
                 cells: len,
                 bandwidth: bw,
             });
         }
-        let split = Split::of(a.n, pattern, order, strides, bw);
-        if self.perm_key != Some((a.n, order, bw)) {
+        // Checked in cell order, as `Pcg` does, before any renumbering.
+        let mut diagonal = std::mem::take(&mut self.r);
+        let usable = a.effective_diag(&mut diagonal);
+        self.r = diagonal;
+        usable?;
+        if self.perm_key != Some((a.n, order, bw, s)) {
             self.perm.clear();
             let [nx, ny, nz] = a.n;
             for k in 0..nz {
@@ -357,35 +431,16 @@ impl BandedCholesky {
                     }
                 }
             }
-            self.perm_key = Some((a.n, order, bw));
+            self.perm_key = Some((a.n, order, bw, s));
         }
         self.bw = bw;
-        self.assemble(a, Split::sizes(split, len));
+        self.assemble(a, [rows_a, rows_b, s]);
         let cell_of = |perm: &[usize], position: usize| {
             perm.iter().position(|&p| p == position).unwrap_or(position)
         };
-        let [rows_a, rows_b, _] = Split::sizes(split, len);
-        let diagonals = [
-            &self.halves[0].diag,
-            &self.halves[1].diag,
-            &self.separator.diag,
-        ];
-        for (diag, offset) in diagonals.into_iter().zip([0, rows_a, rows_a + rows_b]) {
-            if let Some(i) = diag.iter().position(|d| !(d.is_finite() && *d > 0.0)) {
-                if !diag[i].is_finite() {
-                    return Err(SolveError::NonFinite);
-                }
-                let row = cell_of(&self.perm, offset + i);
-                return Err(SolveError::NotPositiveDefinite { row });
-            }
-        }
         let parallel = self.parallel();
         let [ha, hb] = &mut self.halves;
-        let factored = both(
-            parallel,
-            || Self::factor(&mut ha.band, &ha.diag, bw),
-            || Self::factor(&mut hb.band, &hb.diag, bw),
-        );
+        let factored = both(parallel, || ha.factor(bw, s), || hb.factor(bw, s));
         let factored = [factored.0, factored.1];
         for ((result, half), offset) in factored.into_iter().zip(&self.halves).zip([0, rows_a]) {
             if let Err(i) = result {
@@ -396,7 +451,7 @@ impl BandedCholesky {
                 return Err(SolveError::NotPositiveDefinite { row });
             }
         }
-        if let Err(k) = self.separator.factor(&self.halves, bw) {
+        if let Err(k) = self.separator.factor(&self.halves) {
             if self.separator.dense.iter().any(|v| !v.is_finite()) {
                 return Err(SolveError::NonFinite);
             }
@@ -425,8 +480,8 @@ impl BandedCholesky {
     fn assemble(&mut self, a: &StencilMatrix, sizes: [usize; 3]) {
         let (bw, w) = (self.bw, self.bw + 1);
         let [rows_a, rows_b, s] = sizes;
-        self.halves[0].reset(rows_a, bw);
-        self.halves[1].reset(rows_b, bw);
+        self.halves[0].reset(rows_a, bw, s);
+        self.halves[1].reset(rows_b, bw, s);
         self.separator.reset(s);
         // Block (0: A, 1: B, 2: separator) and row within it.
         let locate = |p: usize| match p {
@@ -440,7 +495,10 @@ impl BandedCholesky {
             let ((bi, ri), (bj, rj)) = (locate(i.max(j)), locate(i.min(j)));
             match (bi, bj) {
                 (2, 2) => sep.dense[ri * s + rj] += v,
-                (2, h) => sep.couplings[h][(rj + s - halves[h].len()) * s + ri] += v,
+                (2, h) => {
+                    let first = halves[h].len() - s;
+                    halves[h].coupling[(rj - first) * s + ri] += v
+                }
                 (h, g) if h == g => halves[h].band[rj * w + ri - rj] += v,
                 _ => unreachable!("the separator layer uncouples the halves"),
             }
@@ -463,9 +521,10 @@ impl BandedCholesky {
             });
         }
         for half in halves.iter_mut() {
-            half.diag = half.band.iter().step_by(w).copied().collect();
+            let band = &half.band;
+            half.diag.extend(band.iter().step_by(w));
         }
-        sep.diag = (0..s).map(|k| sep.dense[k * s + k]).collect();
+        sep.diag.extend((0..s).map(|k| sep.dense[k * s + k]));
     }
 
     /// Solves `A x = y` in place, `y` in the order `A, B, S`.
@@ -484,7 +543,8 @@ impl BandedCholesky {
         let s = sep.size;
         if s > 0 {
             let tails = [&mut ya[ha.len() - s..], &mut yb[hb.len() - s..]];
-            for (coupling, tail) in sep.couplings.iter().zip(&tails) {
+            let couplings = [&ha.coupling, &hb.coupling];
+            for (coupling, tail) in couplings.iter().zip(&tails) {
                 for (row, &t) in coupling.chunks_exact(s).zip(tail.iter()) {
                     for (x, &wv) in ys.iter_mut().zip(row) {
                         *x -= wv * t;
@@ -492,7 +552,7 @@ impl BandedCholesky {
                 }
             }
             sep.solve(ys);
-            for (coupling, tail) in sep.couplings.iter().zip(tails) {
+            for (coupling, tail) in couplings.iter().zip(tails) {
                 for (row, t) in coupling.chunks_exact(s).zip(tail.iter_mut()) {
                     *t -= dot(row, ys);
                 }
@@ -510,42 +570,19 @@ impl Separator {
     /// Zeroed storage for a separator of `size` cells.
     fn reset(&mut self, size: usize) {
         self.size = size;
-        for block in self.couplings.iter_mut().chain([&mut self.dense]) {
-            block.clear();
-            block.resize(size * size, 0.0);
-        }
+        self.dense.clear();
+        self.dense.resize(size * size, 0.0);
         self.diag.clear();
     }
 
-    /// With both halves factored: `W_X = T_X⁻¹ A_XS` (`T_X` the trailing
-    /// s × s triangle of `L_X`) in place of the couplings, then the Cholesky
-    /// factor of `A_SS − W_Aᵀ W_A − W_Bᵀ W_B`. `Err(k)` for a bad pivot in
-    /// separator row `k`.
-    fn factor(&mut self, halves: &[BandFactor; 2], bw: usize) -> Result<(), usize> {
+    /// With both halves factored: the Cholesky factor of the Schur
+    /// complement `A_SS − W_Aᵀ W_A − W_Bᵀ W_B` (the two products subtracted
+    /// in that order). `Err(k)` for a bad pivot in separator row `k`.
+    fn factor(&mut self, halves: &[BandFactor; 2]) -> Result<(), usize> {
         let s = self.size;
-        let w = bw + 1;
-        for (coupling, half) in self.couplings.iter_mut().zip(halves) {
-            let first = half.len() - s;
-            // Forward substitution on all s columns at once, row by row.
-            for k in 0..s {
-                let col = &half.band[(first + k) * w..(first + k + 1) * w];
-                let (done, rest) = coupling.split_at_mut((k + 1) * s);
-                let row_k = &mut done[k * s..];
-                let inv = 1.0 / col[0];
-                row_k.iter_mut().for_each(|x| *x *= inv);
-                for (row_i, &l) in rest.chunks_exact_mut(s).zip(&col[1..s - k]) {
-                    for (x, &y) in row_i.iter_mut().zip(row_k.iter()) {
-                        *x -= l * y;
-                    }
-                }
-            }
-            for i in 0..s {
-                for j in 0..=i {
-                    let product: f64 = (0..s)
-                        .map(|k| coupling[k * s + i] * coupling[k * s + j])
-                        .sum();
-                    self.dense[i * s + j] -= product;
-                }
+        for half in halves {
+            for (d, &g) in self.dense.iter_mut().zip(&half.gram) {
+                *d -= g;
             }
         }
         let l = &mut self.dense;
@@ -619,9 +656,14 @@ impl PressureSolver for BandedCholesky {
         }
 
         if self.factored.as_ref() != Some(a) {
-            self.factored = None;
+            // Kept only once factored; refilled in place (no allocation).
+            let mut kept = self.factored.take();
             self.factor_matrix(a)?;
-            self.factored = Some(a.clone());
+            match kept.as_mut() {
+                Some(matrix) => matrix.clone_from(a),
+                None => kept = Some(a.clone()),
+            }
+            self.factored = kept;
         }
 
         // Solve, then check and refine.

@@ -534,8 +534,13 @@ fn split_direct_solve_is_exact_and_thread_independent() {
                 .unwrap();
             pool.install(|| {
                 let mut s = BandedCholesky::new();
+                // Split from 3 layers on; no refinement step may hide a
+                // wrong factor.
+                s.min_split_layers = 3;
+                s.max_refinements = 0;
                 let mut x = vec![0.0; a.len()];
-                s.solve(&a, &b, &mut x, 1e-13).unwrap();
+                let stats = s.solve(&a, &b, &mut x, 1e-12).unwrap();
+                assert_eq!(stats.iterations, 1);
                 (x, s.separator_cells())
             })
         };
@@ -563,23 +568,39 @@ fn split_direct_solve_reports_the_bad_cell() {
         r.random_range(0.05..1.0)
     });
     let b = vec![1.0; base.len()];
+    let split_solver = || {
+        let mut s = BandedCholesky::new();
+        s.min_split_layers = 3;
+        s
+    };
     for cell in [7, 17, 26] {
         let mut a = base.clone();
         a.diag[cell] = -1.0;
         let mut x = vec![0.0; a.len()];
-        let r = BandedCholesky::new().solve(&a, &b, &mut x, 1e-10);
+        let r = split_solver().solve(&a, &b, &mut x, 1e-10);
         assert_eq!(r, Err(SolveError::NotPositiveDefinite { row: cell }));
     }
-    // Positive diagonal, indefinite matrix: the Schur complement of the
-    // separator loses its pivot (the halves alone are definite).
+    // Two bad cells: the first in cell order is named, as by `Pcg`.
     let mut a = base.clone();
-    for c in 15..20 {
-        a.diag[c] = 1e-3;
+    (a.diag[22], a.diag[32]) = (-1.0, -1.0);
+    let r = split_solver().solve(&a, &b, &mut vec![0.0; a.len()], 1e-10);
+    assert_eq!(r, Err(SolveError::NotPositiveDefinite { row: 22 }));
+    // Positive diagonal, indefinite blocks: the factor breaks down in
+    // half A (layer 1), half B (layer 5, numbered backwards) or the Schur
+    // complement of the separator (layer 3; the halves alone are definite).
+    for layer in [1, 5, 3] {
+        let mut a = base.clone();
+        let cells = 5 * layer..5 * layer + 5;
+        for c in cells.clone() {
+            a.diag[c] = 1e-3;
+        }
+        let mut x = vec![0.0; a.len()];
+        let mut solver = split_solver();
+        let r = solver.solve(&a, &b, &mut x, 1e-10);
+        assert_eq!(solver.separator_cells(), 5);
+        assert!(
+            matches!(r, Err(SolveError::NotPositiveDefinite { row }) if cells.contains(&row)),
+            "layer {layer}: {r:?}"
+        );
     }
-    let mut x = vec![0.0; a.len()];
-    let r = BandedCholesky::new().solve(&a, &b, &mut x, 1e-10);
-    assert!(
-        matches!(r, Err(SolveError::NotPositiveDefinite { row }) if (15..20).contains(&row)),
-        "{r:?}"
-    );
 }
