@@ -16,9 +16,10 @@
 //!   system.
 //! * [`BandedCholesky`]: a direct band Cholesky factorisation, exact up to
 //!   round-off, cost ≈ N b² (see [`BandedCholesky::cost_estimate`]). Useful
-//!   for small planar grids where the bandwidth b is small. A middle layer
-//!   of cells splits the grid into two halves, factored and substituted on
-//!   two threads with the same arithmetic as on one.
+//!   for small planar grids where the bandwidth b is small. On grids of at
+//!   least 24 layers along the band's slowest axis, a middle layer of cells
+//!   splits the grid into two halves, factored and substituted on two
+//!   threads with the same arithmetic as on one.
 //!
 //! Both keep their work arrays between calls: after the first solve on a
 //! given grid no further allocation happens.
