@@ -184,6 +184,8 @@ pub struct GasPhase {
     explicit: [Vec<f64>; 3],
     coefficient: [Vec<f64>; 3],
     mass_flux: [Vec<f64>; 3],
+    /// `1 / h` per axis (1/m).
+    inverse_h: DVec3,
     residual: Vec<f64>,
     correction: Vec<f64>,
     matrix: StencilMatrix,
@@ -294,6 +296,7 @@ impl GasPhase {
             explicit: faces.map(|n| vec![0.0; n]),
             coefficient: faces.map(|n| vec![0.0; n]),
             mass_flux: faces.map(|n| vec![0.0; n]),
+            inverse_h: grid.h.recip(),
             residual: vec![0.0; cells],
             correction: vec![0.0; cells],
             linear,
@@ -672,7 +675,7 @@ impl GasPhase {
                 Some(p) => limited_face_value(flux_lo, fetch(u, c0), p, u0, above),
                 None => u0,
             };
-            total += (flux_hi * value_hi - flux_lo * value_lo) / self.grid.h[b];
+            total += (flux_hi * value_hi - flux_lo * value_lo) * self.inverse_h[b];
         }
         total
     }
@@ -980,6 +983,7 @@ impl GasPhase {
                 continue;
             }
             let h = self.grid.h[a];
+            let dt_over_h = dt / h;
             for (f, link) in self.cells_of_face[a].iter().enumerate() {
                 let (eps, eps_rho, rho) = face_values(link, &self.gas_fraction, &self.density);
                 let share = self.pressure_share[a][f];
@@ -1002,11 +1006,12 @@ impl GasPhase {
                         eps * rho * u
                     }
                 };
+                let outflow = flux * dt_over_h;
                 if link.lower != NONE {
-                    self.residual[link.lower as usize] += dt * flux / h;
+                    self.residual[link.lower as usize] += outflow;
                 }
                 if link.upper != NONE {
-                    self.residual[link.upper as usize] -= dt * flux / h;
+                    self.residual[link.upper as usize] -= outflow;
                 }
             }
         }
