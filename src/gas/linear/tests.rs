@@ -506,9 +506,10 @@ fn kept_factor_follows_the_matrix() {
 
 /// The direct solver's split into two halves and a separator layer: exact
 /// (the residual `‖b − A x‖` is measured independently with
-/// `StencilMatrix::apply`), taken on grids whose slowest band axis has ≥ 3
-/// layers and no wrap, and bit-identical on one and two threads (the halves
-/// of the 16 × 200 grid are large enough to run on two).
+/// `StencilMatrix::apply`), taken (with `min_split_layers` lowered to 3)
+/// on grids whose slowest band axis has ≥ 3 layers and no wrap, and
+/// bit-identical on one and two threads (the halves of the 16 × 200 grid
+/// are large enough to run on two).
 #[test]
 fn split_direct_solve_is_exact_and_thread_independent() {
     let cases: &[([usize; 3], [bool; 3], usize)] = &[
