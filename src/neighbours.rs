@@ -499,6 +499,130 @@ impl CellGrid {
         self.for_each_in_block(c, lo, hi, f);
     }
 
+    /// The axis a pair sweep cuts into layers: the last one with more than
+    /// one cell (0, 1, 2 = x, y, z). A layer is a run of consecutive flat
+    /// cell indices, since the axes after it have one cell.
+    pub fn layer_axis(&self) -> usize {
+        (0..3).rev().find(|&a| self.cells[a] > 1).unwrap_or(0)
+    }
+
+    /// Calls `f(cell, slot)` for every particle, cell by cell in flat
+    /// order (each cell's slots in its list order), visiting only the
+    /// cells the occupancy bits mark.
+    pub fn for_each_in_cell_order(&self, mut f: impl FnMut(usize, u32)) {
+        let cells = self.head.len();
+        for (word_index, bytes) in self.occupancy[..cells.div_ceil(8)].chunks(8).enumerate() {
+            let mut word = bytes
+                .iter()
+                .rev()
+                .fold(0u64, |w, &b| (w << 8) | u64::from(b));
+            while word != 0 {
+                let cell = 64 * word_index + word.trailing_zeros() as usize;
+                word &= word - 1;
+                let mut j = self.head[cell];
+                while j != NONE {
+                    f(cell, j);
+                    j = self.next[j as usize];
+                }
+            }
+        }
+    }
+
+    /// Calls `f(slot)` for every particle of the flat cells `first..=last`
+    /// (at most 3, consecutive along x), visiting only occupied cells.
+    #[inline(always)]
+    pub fn for_each_in_run(&self, first: usize, last: usize, mut f: impl FnMut(u32)) {
+        let mut occupied = self.occupancy_run(first, last + 1 - first);
+        while occupied != 0 {
+            let cell = first + occupied.trailing_zeros() as usize;
+            occupied &= occupied - 1;
+            let mut j = self.head[cell];
+            while j != NONE {
+                f(j);
+                j = self.next[j as usize];
+            }
+        }
+    }
+
+    /// As [`CellGrid::for_each_near_cell`], over the neighbours of cell `c`
+    /// in its own layer ([`CellGrid::layer_axis`]) that follow it in flat
+    /// order: offset +1 along an axis below the layer axis, 0 along the
+    /// axes between, −1..=1 along the axes before (4 cells in 3D, 1 in a
+    /// planar run). With [`CellGrid::for_each_in_next_layer`] these are
+    /// half of the 26 neighbours, so that a sweep from every cell meets
+    /// every pair of adjacent cells once.
+    #[inline]
+    pub fn for_each_later_in_layer(&self, c: [usize; 3], mut f: impl FnMut(u32, Option<u32>)) {
+        for below in (0..self.layer_axis()).rev() {
+            let (mut lo, mut hi) = ([0i64; 3], [0i64; 3]);
+            (lo[below], hi[below]) = (1, 1);
+            for a in 0..below {
+                (lo[a], hi[a]) = (-1, 1);
+            }
+            self.for_each_in_block(c, lo, hi, &mut f);
+        }
+    }
+
+    /// As [`CellGrid::for_each_near_cell`], over the 9 cells of the next
+    /// layer: offset +1 along [`CellGrid::layer_axis`], −1..=1 along the
+    /// others.
+    #[inline]
+    pub fn for_each_in_next_layer(&self, c: [usize; 3], f: impl FnMut(u32, Option<u32>)) {
+        self.for_each_in_new_layer(c, self.layer_axis(), true, f);
+    }
+
+    /// The cells of [`CellGrid::for_each_later_in_layer`] and
+    /// [`CellGrid::for_each_in_next_layer`] around cell `c` as runs of
+    /// consecutive flat indices `(first, last)`, in that order, with the
+    /// runs past a wall left out; `None` when one of them would wrap a
+    /// periodic axis (the caller then scans with those two). At most 5
+    /// runs in 3D, 2 in a planar run.
+    #[inline]
+    pub fn forward_runs(&self, c: [usize; 3]) -> Option<([(u32, u32); 5], usize)> {
+        let d = self.cells;
+        let layer_axis = self.layer_axis();
+        let mut runs = [(0u32, 0u32); 5];
+        let mut count = 0;
+        // Each run: offsets along y and z, and the x offsets lo..=hi.
+        let mut add = |dy: i64, dz: i64, lo: i64, hi: i64| -> Option<()> {
+            let (y, z) = (c[1] as i64 + dy, c[2] as i64 + dz);
+            let (x_lo, x_hi) = (c[0] as i64 + lo, c[0] as i64 + hi);
+            for (axis, v) in [(1, y), (2, z)] {
+                if v < 0 || v >= d[axis] as i64 {
+                    if self.periodic[axis] {
+                        return None;
+                    }
+                    return Some(());
+                }
+            }
+            if self.periodic[0] && (x_lo < 0 || x_hi >= d[0] as i64) {
+                return None;
+            }
+            let (x_lo, x_hi) = (x_lo.max(0), x_hi.min(d[0] as i64 - 1));
+            if x_lo <= x_hi {
+                let row = self.flat([0, y as usize, z as usize]) as i64;
+                runs[count] = ((row + x_lo) as u32, (row + x_hi) as u32);
+                count += 1;
+            }
+            Some(())
+        };
+        match layer_axis {
+            2 => {
+                add(0, 0, 1, 1)?;
+                add(1, 0, -1, 1)?;
+                for dy in -1..=1 {
+                    add(dy, 1, -1, 1)?;
+                }
+            }
+            1 => {
+                add(0, 0, 1, 1)?;
+                add(1, 0, -1, 1)?;
+            }
+            _ => add(0, 0, 1, 1)?,
+        }
+        Some((runs, count))
+    }
+
     /// Calls `f(slot, image)` for every particle of the cells at offsets
     /// `lo..=hi` (each within −1..=1) per axis from cell `c`, wrapping on
     /// periodic axes, each cell once (see [`CellGrid::for_each_near`]).

@@ -136,6 +136,18 @@ fn jet_bed_with_gas_sub_steps_is_bit_identical_on_one_and_two_threads() {
     );
 }
 
+/// The jet bed in cells mode: after the per-particle gas kicks every
+/// particle's pair comes from one sweep over the cells, cut into slabs
+/// that run as parallel tasks.
+#[test]
+fn coupled_jet_bed_in_cells_mode_is_bit_identical_on_one_and_two_threads() {
+    assert_thread_independent(
+        "scenarios/bubbling-bed-jet.toml",
+        "0.02",
+        &["--set", "engine.neighbours=cells"],
+    );
+}
+
 /// A gas-free granular run with cells (partial predictions after cell
 /// crossings, parallel re-prediction at every flow step).
 #[test]

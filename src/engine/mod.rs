@@ -20,6 +20,7 @@ mod dynamics;
 mod event_loop;
 mod hybrid;
 mod neighbour_search;
+mod pair_sweep;
 mod records;
 mod soft_stepper;
 mod state;
@@ -277,6 +278,8 @@ pub struct Engine<Q: EventQueue> {
     /// then relative motions, and so the kept pairs of cells mode, still
     /// hold.
     kicks_uniform: bool,
+    /// Cells mode: the buffers of the pair sweep of [`Engine::predict_all`].
+    pair_sweep: pair_sweep::PairSweep,
     /// Particles that left through a reinserting outlet but found no room yet.
     pending_reinsert: Vec<NewParticle>,
 
@@ -432,6 +435,7 @@ impl<Q: EventQueue> Engine<Q> {
             needs_prediction: true,
             kicks_uniform: false,
             prediction_wall_seconds: 0.0,
+            pair_sweep: Default::default(),
             pending_reinsert: Vec::new(),
             counters: Counters::default(),
             records: Vec::new(),
@@ -739,6 +743,7 @@ impl<Q: EventQueue> Engine<Q> {
             ("shell", bytes(&self.shell_centres)),
             ("face_mask", bytes(&self.face_mask)),
             ("cell_state", bytes(&self.cell_state)),
+            ("pair_sweep", self.pair_sweep.heap_bytes()),
             ("is_soft", bytes(&self.is_soft)),
             ("free_slots", bytes(&self.free_slots)),
             ("neighbour_lists", self.lists.heap_bytes()),
