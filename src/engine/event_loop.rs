@@ -232,14 +232,15 @@ impl<Q: EventQueue> Engine<Q> {
     /// state) in parallel, then queued in slot order, so that the queue is
     /// the same whatever the thread count. Cells mode keeps each particle's
     /// pair after uniform kicks only ([`Engine::prediction_after_uniform_kick`]),
-    /// and otherwise finds every particle's pair in one sweep that tests
-    /// each pair once ([`Engine::sweep_pairs`]).
+    /// and after other kicks finds every particle's pair in one sweep that
+    /// tests each pair once ([`Engine::sweep_pairs`]).
     #[inline]
     pub(super) fn predict_all(&mut self) {
         let cells = self.config.neighbours == NeighbourSearch::Cells;
         let keep_pairs = self.kicks_uniform && cells && self.config.model == ContactModel::Hard;
+        let swept = cells && !keep_pairs && self.has_predicted;
         let mut sweep = std::mem::take(&mut self.pair_sweep);
-        if cells && !keep_pairs {
+        if swept {
             self.sweep_pairs(&mut sweep);
         }
         self.queue.clear();
@@ -257,7 +258,7 @@ impl<Q: EventQueue> Engine<Q> {
                     engine.active[i].then(|| {
                         if keep_pairs {
                             engine.prediction_after_uniform_kick(i)
-                        } else if cells {
+                        } else if swept {
                             engine.prediction_with_pair(i, sweep.found(i))
                         } else {
                             engine.prediction(i)
@@ -272,6 +273,7 @@ impl<Q: EventQueue> Engine<Q> {
             }
         }
         self.pair_sweep = sweep;
+        self.has_predicted = true;
         self.needs_prediction = false;
         self.kicks_uniform = true;
     }

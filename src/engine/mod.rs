@@ -278,6 +278,10 @@ pub struct Engine<Q: EventQueue> {
     /// then relative motions, and so the kept pairs of cells mode, still
     /// hold.
     kicks_uniform: bool,
+    /// Whether [`Engine::predict_all`] has run (or the state was imported):
+    /// the first prediction searches particle by particle, so that runs
+    /// without per-particle kicks (`edpm bench`) never hold sweep buffers.
+    has_predicted: bool,
     /// Cells mode: the buffers of the pair sweep of [`Engine::predict_all`].
     pair_sweep: pair_sweep::PairSweep,
     /// Particles that left through a reinserting outlet but found no room yet.
@@ -434,6 +438,7 @@ impl<Q: EventQueue> Engine<Q> {
             time_origin_error: 0.0,
             needs_prediction: true,
             kicks_uniform: false,
+            has_predicted: false,
             prediction_wall_seconds: 0.0,
             pair_sweep: Default::default(),
             pending_reinsert: Vec::new(),
