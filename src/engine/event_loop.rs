@@ -238,7 +238,7 @@ impl<Q: EventQueue> Engine<Q> {
     pub(super) fn predict_all(&mut self) {
         let cells = self.config.neighbours == NeighbourSearch::Cells;
         let keep_pairs = self.kicks_uniform && cells && self.config.model == ContactModel::Hard;
-        let swept = cells && !keep_pairs && self.has_predicted;
+        let swept = cells && !keep_pairs;
         let mut sweep = std::mem::take(&mut self.pair_sweep);
         if swept {
             self.sweep_pairs(&mut sweep);
@@ -273,7 +273,6 @@ impl<Q: EventQueue> Engine<Q> {
             }
         }
         self.pair_sweep = sweep;
-        self.has_predicted = true;
         self.needs_prediction = false;
         self.kicks_uniform = true;
     }

@@ -276,12 +276,10 @@ pub struct Engine<Q: EventQueue> {
     /// Whether every velocity change since the last [`Engine::predict_all`]
     /// outside events was the same for all particles ([`Engine::kick_all`]):
     /// then relative motions, and so the kept pairs of cells mode, still
-    /// hold.
+    /// hold. True at the start, where every slot is unpredicted and gets a
+    /// particle-by-particle search: runs without per-particle kicks
+    /// (`edpm bench`) never hold pair-sweep buffers.
     kicks_uniform: bool,
-    /// Whether [`Engine::predict_all`] has run (or the state was imported):
-    /// the first prediction searches particle by particle, so that runs
-    /// without per-particle kicks (`edpm bench`) never hold sweep buffers.
-    has_predicted: bool,
     /// Cells mode: the buffers of the pair sweep of [`Engine::predict_all`].
     pair_sweep: pair_sweep::PairSweep,
     /// Particles that left through a reinserting outlet but found no room yet.
@@ -437,8 +435,7 @@ impl<Q: EventQueue> Engine<Q> {
             time_origin: 0.0,
             time_origin_error: 0.0,
             needs_prediction: true,
-            kicks_uniform: false,
-            has_predicted: false,
+            kicks_uniform: true,
             prediction_wall_seconds: 0.0,
             pair_sweep: Default::default(),
             pending_reinsert: Vec::new(),

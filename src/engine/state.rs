@@ -338,8 +338,6 @@ impl<Q: EventQueue> Engine<Q> {
                 .collect();
         }
         self.kicks_uniform = state.kept_pairs.is_some();
-        // States are taken between flow steps, after a prediction.
-        self.has_predicted = true;
         self.is_soft = vec![false; n];
         self.turned_soft.clear();
         self.free_slots = state.free_slots;
