@@ -8,7 +8,11 @@
 //!   at φ = 0.1 and 0.3 and lists at φ = 0.45 (the `auto` choices);
 //! - `list_rebuild`: renumbering in cell order and rebuilding every
 //!   neighbour list from the slot-only cell grid (`Engine::reorder_by_cell`,
-//!   N = 4000, φ = 0.3 and 0.45), per particle.
+//!   N = 4000, φ = 0.3 and 0.45), per particle;
+//! - `re_prediction`: cells mode, re-predicting every particle after a
+//!   flow step's per-particle kicks (the pair sweep, `Engine::predict_all`),
+//!   N = 32000 (32 cells a side, so that most cells are away from the
+//!   periodic faces), φ = 0.1 and 0.3, on one thread, per particle.
 
 use std::hint::black_box;
 use std::time::{Duration, Instant};
@@ -57,11 +61,11 @@ fn cell_scan(c: &mut Criterion) {
 /// Collisions processed per benchmark element.
 const COLLISIONS: u64 = 1000;
 
-/// `edpm bench`'s system at `phi` (4000 elastic unit spheres from the FCC
-/// lattice) with the search `neighbours`, melted by 5 collisions per
+/// `edpm bench`'s system at `phi` (about `n` elastic unit spheres from the
+/// FCC lattice) with the search `neighbours`, melted by 5 collisions per
 /// particle.
-fn melted_engine(phi: f64, neighbours: NeighbourSearch) -> Engine<CalendarQueue> {
-    let (domain, particles) = fcc_system(4000, phi, 1);
+fn melted_engine(n: usize, phi: f64, neighbours: NeighbourSearch) -> Engine<CalendarQueue> {
+    let (domain, particles) = fcc_system(n, phi, 1);
     let config = EngineConfig {
         skin: 0.3,
         seed: 1,
@@ -85,7 +89,7 @@ fn collisions(c: &mut Criterion) {
     for phi in [0.1, 0.3, 0.45] {
         // 4000 spheres span at least 15 diameters a side: cells fit.
         let neighbours = auto_neighbour_search(phi, false, true);
-        let mut engine = melted_engine(phi, neighbours);
+        let mut engine = melted_engine(4000, phi, neighbours);
         let label = match neighbours {
             NeighbourSearch::Lists => "lists",
             NeighbourSearch::Cells => "cells",
@@ -109,7 +113,7 @@ fn list_rebuild(c: &mut Criterion) {
     let mut group = c.benchmark_group("list_rebuild");
     for phi in [0.3, 0.45] {
         // A melted fluid, so that the lists have their fluid lengths.
-        let mut engine = melted_engine(phi, NeighbourSearch::Lists);
+        let mut engine = melted_engine(4000, phi, NeighbourSearch::Lists);
         group.throughput(Throughput::Elements(engine.len() as u64));
         engine.end_flow_step();
         group.bench_function(BenchmarkId::from_parameter(phi), |b| {
@@ -120,10 +124,41 @@ fn list_rebuild(c: &mut Criterion) {
     group.finish();
 }
 
+fn re_prediction(c: &mut Criterion) {
+    let mut group = c.benchmark_group("re_prediction");
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .expect("a pool of one thread");
+    for phi in [0.1, 0.3] {
+        let mut engine = melted_engine(32000, phi, NeighbourSearch::Cells);
+        group.throughput(Throughput::Elements(engine.len() as u64));
+        // Kicks of about 1 % of the thermal speed, different per particle.
+        let kicks: Vec<glam::DVec3> = (0..engine.slots())
+            .map(|i| {
+                let a = i as f64;
+                0.01 * glam::DVec3::new(a.sin(), (1.3 * a).cos(), (0.7 * a).sin())
+            })
+            .collect();
+        group.bench_function(BenchmarkId::new("per-particle kicks", phi), |b| {
+            pool.install(|| {
+                b.iter(|| {
+                    engine.end_flow_step();
+                    engine.kick_slots(&kicks);
+                    // A flight of zero length: the re-prediction alone.
+                    engine.advance(0.0);
+                })
+            })
+        });
+        black_box(engine.kinetic_energy());
+    }
+    group.finish();
+}
+
 criterion_group! {
     name = benches;
     // Criterion's plotting backend panics here (no fonts): numbers only.
     config = Criterion::default().without_plots();
-    targets = cell_scan, collisions, list_rebuild
+    targets = cell_scan, collisions, list_rebuild, re_prediction
 }
 criterion_main!(benches);

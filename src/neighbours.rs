@@ -528,22 +528,6 @@ impl CellGrid {
         }
     }
 
-    /// Calls `f(slot)` for every particle of the flat cells `first..=last`
-    /// (at most 3, consecutive along x), visiting only occupied cells.
-    #[inline(always)]
-    pub fn for_each_in_run(&self, first: usize, last: usize, mut f: impl FnMut(u32)) {
-        let mut occupied = self.occupancy_run(first, last + 1 - first);
-        while occupied != 0 {
-            let cell = first + occupied.trailing_zeros() as usize;
-            occupied &= occupied - 1;
-            let mut j = self.head[cell];
-            while j != NONE {
-                f(j);
-                j = self.next[j as usize];
-            }
-        }
-    }
-
     /// As [`CellGrid::for_each_near_cell`], over the neighbours of cell `c`
     /// in its own layer ([`CellGrid::layer_axis`]) that follow it in flat
     /// order: offset +1 along an axis below the layer axis, 0 along the
@@ -573,20 +557,23 @@ impl CellGrid {
 
     /// The cells of [`CellGrid::for_each_later_in_layer`] and
     /// [`CellGrid::for_each_in_next_layer`] around cell `c` as runs of
-    /// consecutive flat indices `(first, last)`, in that order, with the
-    /// runs past a wall left out; `None` when one of them would wrap a
-    /// periodic axis (the caller then scans with those two). At most 5
-    /// runs in 3D, 2 in a planar run.
-    #[inline]
+    /// consecutive flat indices `first..=last`, in that order; `None` when
+    /// one of them would wrap a periodic axis (the caller then scans with
+    /// those two). Each run keeps its place in the array (5 in 3D, 2 in a
+    /// planar run, 1 along a line): a run past a wall is empty
+    /// (`first > last`). For cells taken in flat order, each place's
+    /// `first` never decreases.
+    #[inline(always)]
     pub fn forward_runs(&self, c: [usize; 3]) -> Option<([(u32, u32); 5], usize)> {
         let d = self.cells;
         let layer_axis = self.layer_axis();
-        let mut runs = [(0u32, 0u32); 5];
+        let mut runs = [(1u32, 0u32); 5];
         let mut count = 0;
         // Each run: offsets along y and z, and the x offsets lo..=hi.
         let mut add = |dy: i64, dz: i64, lo: i64, hi: i64| -> Option<()> {
             let (y, z) = (c[1] as i64 + dy, c[2] as i64 + dz);
             let (x_lo, x_hi) = (c[0] as i64 + lo, c[0] as i64 + hi);
+            count += 1;
             for (axis, v) in [(1, y), (2, z)] {
                 if v < 0 || v >= d[axis] as i64 {
                     if self.periodic[axis] {
@@ -601,8 +588,7 @@ impl CellGrid {
             let (x_lo, x_hi) = (x_lo.max(0), x_hi.min(d[0] as i64 - 1));
             if x_lo <= x_hi {
                 let row = self.flat([0, y as usize, z as usize]) as i64;
-                runs[count] = ((row + x_lo) as u32, (row + x_hi) as u32);
-                count += 1;
+                runs[count - 1] = ((row + x_lo) as u32, (row + x_hi) as u32);
             }
             Some(())
         };

@@ -7,7 +7,10 @@
 //! later particles of its own cell and the neighbour cells that follow
 //! its cell (`CellGrid::for_each_later_in_layer`,
 //! `CellGrid::for_each_in_next_layer`), keeping the earliest pair of
-//! both particles. A kick that differs between particles changes every
+//! both particles. Away from periodic faces those cells' particles are
+//! read from the cell-ordered copy itself, found by one cursor per run of
+//! `CellGrid::forward_runs` that only moves forward (no cell lists, no
+//! occupancy bits); at periodic faces the image-aware scans take over. A kick that differs between particles changes every
 //! relative velocity, and a grazing pair can turn into a collision under
 //! any change however small, so every pair must be tested again: once is
 //! the least an exact re-prediction can do.
@@ -48,10 +51,17 @@ struct SweptParticle {
     vel: DVec3,
     radius: f64,
     cell: [u32; 3],
+    /// The cell's flat index ([`crate::neighbours::CellGrid::flat`]).
+    flat: u32,
     slot: u32,
 }
 
-/// A pair sweep's buffers, kept between flow steps (92 bytes a particle).
+/// Per run of [`crate::neighbours::CellGrid::forward_runs`], the first
+/// place not yet known to lie before the run: the runs of cells taken in
+/// flat order never move back, so each cursor crosses the particles once.
+type RunCursors = [usize; 5];
+
+/// A pair sweep's buffers, kept between flow steps (100 bytes a particle).
 #[derive(Debug, Default)]
 pub(super) struct PairSweep {
     /// The active particles in flat cell order ([`crate::neighbours::CellGrid::for_each_in_cell_order`]).
@@ -134,16 +144,29 @@ impl<Q: EventQueue> Engine<Q> {
             rest = tail;
         }
         tasks.into_par_iter().for_each(|(layers, base, own)| {
+            let mut cursors: RunCursors = [base; 5];
             for layer in layers.clone() {
-                let next_layer = layer + 1 < layers.end;
+                let scan = SweepScan::InSlab {
+                    next_layer: layer + 1 < layers.end,
+                };
                 for k in view.layers(layer..layer + 1) {
-                    self.sweep_from(&view, k, SweepScan::InSlab { next_layer }, own, base);
+                    self.sweep_from(&view, (k, layer), scan, &mut cursors, own, base);
                 }
             }
         });
         for layers in &slabs {
-            for k in view.layers(layers.end - 1..layers.end) {
-                self.sweep_from(&view, k, SweepScan::NextLayer, found, 0);
+            let layer = layers.end - 1;
+            let places = view.layers(layer..layers.end);
+            let mut cursors: RunCursors = [places.start; 5];
+            for k in places {
+                self.sweep_from(
+                    &view,
+                    (k, layer),
+                    SweepScan::NextLayer,
+                    &mut cursors,
+                    found,
+                    0,
+                );
             }
         }
     }
@@ -174,6 +197,7 @@ impl<Q: EventQueue> Engine<Q> {
                 vel: DVec3::ZERO,
                 radius: 0.0,
                 cell: [0; 3],
+                flat: cell as u32,
                 slot,
             });
         });
@@ -194,70 +218,97 @@ impl<Q: EventQueue> Engine<Q> {
         layer_cells
     }
 
-    /// Tests the particle at place `k` of the cell order against the
+    /// Tests the pair of particle `pa` at place `k` and the one at place
+    /// `place_b` shifted by image `code`, keeping the earlier pair of each
+    /// side in `found` (which holds the places from `base` on).
+    #[inline(always)]
+    fn test_pair(
+        &self,
+        view: &SweepView,
+        (k, pa): (usize, &SweptParticle),
+        (place_b, code): (usize, u32),
+        found: &mut [PairFound],
+        base: usize,
+    ) {
+        let pb = &view.particles[place_b];
+        let offset = if code == IDENTITY_IMAGE {
+            pa.pos - pb.pos
+        } else {
+            pa.pos - (pb.pos + self.image_shift[code as usize])
+        };
+        let t = geometry::pair_contact_time_eager(offset, pa.vel - pb.vel, pa.radius + pb.radius);
+        if t == f64::INFINITY {
+            return;
+        }
+        // As in a per-particle search: a pair that touched at this very
+        // instant does not collide again at delay 0.
+        let touched = t == 0.0;
+        let own = &mut found[k - base];
+        if t < own.best && !(touched && pb.slot == self.just_hit(pa.slot as usize)) {
+            *own = PairFound {
+                best: t,
+                best_entry: Some(neighbours::pack(pb.slot, code)),
+            };
+        }
+        let other = &mut found[place_b - base];
+        if t < other.best && !(touched && pa.slot == self.just_hit(pb.slot as usize)) {
+            *other = PairFound {
+                best: t,
+                best_entry: Some(neighbours::pack(pa.slot, MIRROR_IMAGE - code)),
+            };
+        }
+    }
+
+    /// Tests the particle at place `k` of the cell order, in `layer`, against the
     /// neighbours `scan` names, keeping the earlier pair of each side in
-    /// `found`, which holds the places from `base` on.
+    /// `found`, which holds the places from `base` on. Away from periodic
+    /// faces the neighbour cells' particles are found in the cell order
+    /// itself, through `cursors`.
     #[inline]
     fn sweep_from(
         &self,
         view: &SweepView,
-        k: usize,
+        (k, layer): (usize, usize),
         scan: SweepScan,
+        cursors: &mut RunCursors,
         found: &mut [PairFound],
         base: usize,
     ) {
         let pa = view.particles[k];
         let mut test = |place_b: usize, code: u32| {
-            let pb = &view.particles[place_b];
-            let t = geometry::pair_contact_time_eager(
-                pa.pos - (pb.pos + self.image_shift[code as usize]),
-                pa.vel - pb.vel,
-                pa.radius + pb.radius,
-            );
-            if t == f64::INFINITY {
-                return;
-            }
-            // As in a per-particle search: a pair that touched at this
-            // very instant does not collide again at delay 0.
-            let touched = t == 0.0;
-            let own = &mut found[k - base];
-            if t < own.best && !(touched && pb.slot == self.just_hit(pa.slot as usize)) {
-                *own = PairFound {
-                    best: t,
-                    best_entry: Some(neighbours::pack(pb.slot, code)),
-                };
-            }
-            let other = &mut found[place_b - base];
-            if t < other.best && !(touched && pa.slot == self.just_hit(pb.slot as usize)) {
-                *other = PairFound {
-                    best: t,
-                    best_entry: Some(neighbours::pack(pa.slot, MIRROR_IMAGE - code)),
-                };
-            }
+            self.test_pair(view, (k, &pa), (place_b, code), found, base)
         };
         let c = pa.cell.map(|v| v as usize);
-        let flat = self.cells.flat(c);
         let (next_layer, in_layer) = match scan {
             SweepScan::InSlab { next_layer } => (next_layer, true),
             SweepScan::NextLayer => (true, false),
         };
         if in_layer {
             for q in k + 1..view.particles.len() {
-                if view.particles[q].cell != pa.cell {
+                if view.particles[q].flat != pa.flat {
                     break;
                 }
                 test(q, IDENTITY_IMAGE);
             }
         }
-        let place = |slot: u32| view.place[slot as usize] as usize;
         if let Some((runs, count)) = self.cells.forward_runs(c) {
-            for &(first, last) in &runs[..count] {
-                let next = first as usize / view.layer_cells != flat / view.layer_cells;
-                if (next && next_layer) || (!next && in_layer) {
-                    self.cells
-                        .for_each_in_run(first as usize, last as usize, |b| {
-                            test(place(b), IDENTITY_IMAGE)
-                        });
+            let particles = view.particles;
+            let next_layer_start = ((layer + 1) * view.layer_cells) as u32;
+            for (&(first, last), at) in runs[..count].iter().zip(cursors.iter_mut()) {
+                let next = first >= next_layer_start;
+                if first > last || !((next && next_layer) || (!next && in_layer)) {
+                    continue;
+                }
+                // The run's cells follow particle k's: its particles too.
+                *at = (*at).max(k + 1);
+                while *at < particles.len() && particles[*at].flat < first {
+                    *at += 1;
+                }
+                for (q, pb) in particles.iter().enumerate().skip(*at) {
+                    if pb.flat > last {
+                        break;
+                    }
+                    test(q, IDENTITY_IMAGE);
                 }
             }
             return;
@@ -265,6 +316,7 @@ impl<Q: EventQueue> Engine<Q> {
         // A cell at a periodic face: the scans that know the images.
         // Cells mode keeps at least 3 cells on periodic axes: every image
         // code is known from the cell index.
+        let place = |slot: u32| view.place[slot as usize] as usize;
         let mut by_slot =
             |b: u32, image: Option<u32>| test(place(b), image.unwrap_or(IDENTITY_IMAGE));
         if in_layer {
