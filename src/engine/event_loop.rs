@@ -755,8 +755,9 @@ mod tests {
 
     /// The pair sweep gives every particle the pair its own search finds
     /// (partner, image and time; times to round-off across periodic faces,
-    /// where the two sides shift different positions), in 3D with periodic
-    /// faces (the image-aware scans), with walls, and in a planar run.
+    /// where the two sides shift different positions), and so the same
+    /// event, in 3D with periodic faces (the image-aware scans), with
+    /// walls, and in a planar run.
     #[test]
     fn the_pair_sweep_finds_each_particles_own_earliest_pair() {
         use AxisBoundary::{Frozen, Periodic, Walls};
@@ -772,16 +773,23 @@ mod tests {
             engine.sweep_pairs(&mut sweep);
             let mut paired = 0;
             for i in 0..engine.slots() {
-                let own = engine.prediction(i).candidate;
-                let swept = engine.prediction_with_pair(i, sweep.found(i)).candidate;
+                let own_prediction = engine.prediction(i);
+                let swept_prediction = engine.prediction_with_pair(i, sweep.found(i));
+                let (own, swept) = (own_prediction.candidate, swept_prediction.candidate);
                 assert_eq!(own.entry, swept.entry, "{axes:?}: slot {i}");
                 // 1e-12 s: round-off of times of order 1 s.
+                let close = |a: f64, b: f64| (a - b).abs() <= 1e-12 || a == b;
                 assert!(
-                    (own.time - swept.time).abs() <= 1e-12 || own.time == swept.time,
+                    close(own.time, swept.time),
                     "{axes:?}: slot {i}: {} against {}",
                     own.time,
                     swept.time
                 );
+                assert_eq!(
+                    own_prediction.event, swept_prediction.event,
+                    "{axes:?}: slot {i}"
+                );
+                assert!(close(own_prediction.delay, swept_prediction.delay));
                 paired += usize::from(own.time.is_finite());
             }
             // Most particles have an approaching neighbour.

@@ -341,7 +341,7 @@ pub(super) enum EventKind {
 /// A particle's pending event. For pairs, `partner` is a packed list entry
 /// (index and image code) and `partner_count` the partner's event counter
 /// when the prediction was made.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(super) struct Scheduled {
     pub(super) kind: EventKind,
     pub(super) face: Face,
