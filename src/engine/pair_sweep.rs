@@ -51,8 +51,6 @@ struct SweptParticle {
     vel: DVec3,
     radius: f64,
     cell: [u32; 3],
-    /// The cell's flat index ([`crate::neighbours::CellGrid::flat`]).
-    flat: u32,
     slot: u32,
 }
 
@@ -61,11 +59,15 @@ struct SweptParticle {
 /// flat order never move back, so each cursor crosses the particles once.
 type RunCursors = [usize; 5];
 
-/// A pair sweep's buffers, kept between flow steps (100 bytes a particle).
+/// A pair sweep's buffers, kept between flow steps (96 bytes a particle).
 #[derive(Debug, Default)]
 pub(super) struct PairSweep {
     /// The active particles in flat cell order ([`crate::neighbours::CellGrid::for_each_in_cell_order`]).
     particles: Vec<SweptParticle>,
+    /// Per place, the particle's flat cell index
+    /// ([`crate::neighbours::CellGrid::flat`]), apart so that the cursors
+    /// read 4 bytes a particle.
+    flats: Vec<u32>,
     /// Where each layer's particles start in `particles`, and the total.
     layer_start: Vec<u32>,
     /// Per slot, its place in `particles` (`u32::MAX` for a free slot).
@@ -84,7 +86,8 @@ impl PairSweep {
     /// Heap memory of the buffers (bytes, allocated capacity).
     pub(super) fn heap_bytes(&self) -> usize {
         self.particles.capacity() * std::mem::size_of::<SweptParticle>()
-            + (self.layer_start.capacity() + self.place.capacity()) * std::mem::size_of::<u32>()
+            + (self.flats.capacity() + self.layer_start.capacity() + self.place.capacity())
+                * std::mem::size_of::<u32>()
             + self.found.capacity() * std::mem::size_of::<PairFound>()
     }
 }
@@ -92,6 +95,7 @@ impl PairSweep {
 /// The read-only part of a sweep's buffers.
 struct SweepView<'a> {
     particles: &'a [SweptParticle],
+    flats: &'a [u32],
     layer_start: &'a [u32],
     place: &'a [u32],
     /// Cells per layer along [`crate::neighbours::CellGrid::layer_axis`].
@@ -122,6 +126,7 @@ impl<Q: EventQueue> Engine<Q> {
         let layer_cells = self.gather_in_cell_order(sweep);
         let PairSweep {
             particles,
+            flats,
             layer_start,
             place,
             found,
@@ -130,6 +135,7 @@ impl<Q: EventQueue> Engine<Q> {
         found.resize(particles.len(), PairFound::NONE);
         let view = SweepView {
             particles,
+            flats,
             layer_start,
             place,
             layer_cells,
@@ -179,11 +185,13 @@ impl<Q: EventQueue> Engine<Q> {
         let layer_cells: usize = dims[..layer_axis].iter().product();
         let PairSweep {
             particles,
+            flats,
             layer_start,
             place,
             ..
         } = sweep;
         particles.clear();
+        flats.clear();
         layer_start.clear();
         place.clear();
         place.resize(self.kin.len(), u32::MAX);
@@ -192,12 +200,12 @@ impl<Q: EventQueue> Engine<Q> {
                 layer_start.push(particles.len() as u32);
             }
             place[slot as usize] = particles.len() as u32;
+            flats.push(cell as u32);
             particles.push(SweptParticle {
                 pos: DVec3::ZERO,
                 vel: DVec3::ZERO,
                 radius: 0.0,
                 cell: [0; 3],
-                flat: cell as u32,
                 slot,
             });
         });
@@ -283,16 +291,18 @@ impl<Q: EventQueue> Engine<Q> {
             SweepScan::InSlab { next_layer } => (next_layer, true),
             SweepScan::NextLayer => (true, false),
         };
+        let flats = view.flats;
         if in_layer {
-            for q in k + 1..view.particles.len() {
-                if view.particles[q].flat != pa.flat {
-                    break;
-                }
+            let own_cell = flats[k];
+            let same = flats[k + 1..]
+                .iter()
+                .take_while(|&&f| f == own_cell)
+                .count();
+            for q in k + 1..k + 1 + same {
                 test(q, IDENTITY_IMAGE);
             }
         }
         if let Some((runs, count)) = self.cells.forward_runs(c) {
-            let particles = view.particles;
             let next_layer_start = ((layer + 1) * view.layer_cells) as u32;
             for (&(first, last), at) in runs[..count].iter().zip(cursors.iter_mut()) {
                 let next = first >= next_layer_start;
@@ -301,13 +311,9 @@ impl<Q: EventQueue> Engine<Q> {
                 }
                 // The run's cells follow particle k's: its particles too.
                 *at = (*at).max(k + 1);
-                while *at < particles.len() && particles[*at].flat < first {
-                    *at += 1;
-                }
-                for (q, pb) in particles.iter().enumerate().skip(*at) {
-                    if pb.flat > last {
-                        break;
-                    }
+                *at += flats[*at..].iter().take_while(|&&f| f < first).count();
+                let run = flats[*at..].iter().take_while(|&&f| f <= last).count();
+                for q in *at..*at + run {
                     test(q, IDENTITY_IMAGE);
                 }
             }
