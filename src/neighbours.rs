@@ -561,8 +561,8 @@ impl CellGrid {
     /// one of them would wrap a periodic axis (the caller then scans with
     /// those two). Each run keeps its place in the array (5 in 3D, 2 in a
     /// planar run, 1 along a line): a run past a wall is empty
-    /// (`first > last`). For cells taken in flat order, each place's
-    /// `first` never decreases.
+    /// (`first > last`). For cells taken in flat order, the `first` of
+    /// each place's non-empty runs never decreases.
     #[inline(always)]
     pub fn forward_runs(&self, c: [usize; 3]) -> Option<([(u32, u32); 5], usize)> {
         let d = self.cells;

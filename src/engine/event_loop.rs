@@ -789,7 +789,12 @@ mod tests {
                     own_prediction.event, swept_prediction.event,
                     "{axes:?}: slot {i}"
                 );
-                assert!(close(own_prediction.delay, swept_prediction.delay));
+                assert!(
+                    close(own_prediction.delay, swept_prediction.delay),
+                    "{axes:?}: slot {i}: delay {} against {}",
+                    own_prediction.delay,
+                    swept_prediction.delay
+                );
                 paired += usize::from(own.time.is_finite());
             }
             // Most particles have an approaching neighbour.

@@ -10,10 +10,12 @@
 //! both particles. Away from periodic faces those cells' particles are
 //! read from the cell-ordered copy itself, found by one cursor per run of
 //! `CellGrid::forward_runs` that only moves forward (no cell lists, no
-//! occupancy bits); at periodic faces the image-aware scans take over. A kick that differs between particles changes every
-//! relative velocity, and a grazing pair can turn into a collision under
-//! any change however small, so every pair must be tested again: once is
-//! the least an exact re-prediction can do.
+//! occupancy bits); at periodic faces the image-aware scans take over.
+//!
+//! A kick that differs between particles changes every relative velocity,
+//! and a grazing pair can turn into a collision under any change however
+//! small, so every pair must be tested again: once is the least an exact
+//! re-prediction can do.
 //!
 //! The layers of cells along `CellGrid::layer_axis` are cut into slabs
 //! that run in parallel, each writing only its own particles' results;
