@@ -9,10 +9,11 @@
 //! - `list_rebuild`: renumbering in cell order and rebuilding every
 //!   neighbour list from the slot-only cell grid (`Engine::reorder_by_cell`,
 //!   N = 4000, φ = 0.3 and 0.45), per particle;
-//! - `re_prediction`: cells mode, re-predicting every particle after a
-//!   flow step's per-particle kicks (the pair sweep, `Engine::predict_all`),
-//!   N = 32000 (32 cells a side, so that most cells are away from the
-//!   periodic faces), φ = 0.1 and 0.3, on one thread, per particle.
+//! - `re_prediction`: cells mode, a flow step's end, per-particle kicks
+//!   and the re-prediction of every particle after them (the pair sweep,
+//!   `Engine::predict_all`), N = 32000 (55 and 38 cells a side at φ = 0.1
+//!   and 0.3, so that most cells are away from the periodic faces), on one
+//!   thread, per particle.
 
 use std::hint::black_box;
 use std::time::{Duration, Instant};
