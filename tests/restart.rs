@@ -135,6 +135,15 @@ fn a_restarted_jet_bed_with_gas_sub_steps_continues_bit_for_bit() {
     restart_is_bit_identical("jet-substeps", JET, "0.06", "0.024", &step);
 }
 
+/// The riser with overlapped splitting: the restarted run's first step
+/// must be predicted from the kicks kept in the file, as the original's
+/// was (without them it would take a second-order step).
+#[test]
+fn a_restarted_overlapped_riser_continues_bit_for_bit() {
+    let overlapped = ["--set", "time.splitting=\"overlapped\""];
+    restart_is_bit_identical("riser-overlapped", RISER, "0.06", "0.03", &overlapped);
+}
+
 /// A gas-free box under gravity in cells mode: uniform kicks, after
 /// which each particle keeps its pair (`kept_pairs` in the file), so the
 /// restarted run must start from the kept pairs as the original did.

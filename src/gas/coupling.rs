@@ -311,6 +311,11 @@ impl Coupling {
         }
     }
 
+    /// The kicks of the last [`Coupling::kicks`], one per slot (m/s).
+    pub fn last_kicks(&self) -> &[DVec3] {
+        &self.kicks
+    }
+
     /// Step 3: velocity kick per slot (m/s) over the flow step `dt` of
     /// [`Coupling::prepare`] from drag, pressure gradient and gravity, with
     /// the gas at its new level. The particles must not have moved since

@@ -39,10 +39,16 @@ pub struct GasRun {
     pressure_axis: Option<usize>,
     pub totals: GasTotals,
     interval: IntervalStats,
-    /// Second-order splitting: the part of this step's kicks still to be
-    /// given after the flight, per slot, with the id of the particle it
-    /// belongs to ([`GasRun::finish_kicks`]).
+    /// Second-order and overlapped splitting: the part of this step's kicks
+    /// still to be given after the flight, per slot, with the id of the
+    /// particle it belongs to ([`GasRun::finish_kicks`]).
     deferred: Vec<(u64, DVec3)>,
+    /// Overlapped splitting: the last step's kick per slot, with the id of
+    /// the particle it went to (kept across steps and in restart files).
+    predictor_source: Vec<(u64, DVec3)>,
+    /// Overlapped splitting: the predicted half kick each slot got before
+    /// this step's flight.
+    predicted: Vec<DVec3>,
     /// Every slot's particle at the start of the current step (a buffer
     /// kept between steps).
     views: Vec<Option<ParticleView>>,
@@ -125,6 +131,8 @@ impl GasRun {
             totals: GasTotals::default(),
             interval: IntervalStats::default(),
             deferred: Vec::new(),
+            predictor_source: Vec::new(),
+            predicted: Vec::new(),
             views: Vec::new(),
             solver_wall_seconds: 0.0,
         }
@@ -177,17 +185,9 @@ impl GasRun {
         half: bool,
     ) -> Result<(), GasError> {
         let start = crate::timing::cpu_time();
-        // One view of every slot serves the whole step: the particles do
-        // not move before the kicks.
-        self.views.clear();
-        self.views
-            .extend((0..engine.slots()).map(|i| engine.particle(i)));
-        self.coupling.prepare(&mut self.gas, &self.views, dt);
-        let (solver_start, solver_wall) = (crate::timing::cpu_time(), std::time::Instant::now());
-        let stats = self.gas.step(dt)?;
-        self.totals.solver_cpu_seconds += crate::timing::cpu_time() - solver_start;
-        self.solver_wall_seconds += solver_wall.elapsed().as_secs_f64();
-        let kicks = self.coupling.kicks(&self.gas, &self.views, dt);
+        self.take_views(engine);
+        self.solve_from_views(dt, crate::timing::cpu_time)?;
+        let kicks = &self.coupling.last_kicks();
         if half {
             let halves: Vec<DVec3> = kicks.iter().map(|k| 0.5 * *k).collect();
             self.deferred.clear();
@@ -201,6 +201,111 @@ impl GasRun {
         } else {
             engine.kick_slots(kicks);
         }
+        self.totals.gas_cpu_seconds += crate::timing::cpu_time() - start;
+        Ok(())
+    }
+
+    /// Overlapped splitting, before the flight: takes the views of every
+    /// slot (the state the gas step of this flow step will use) and gives
+    /// each particle the predicted half kick `Δv_{n−1}/2`, half of the kick
+    /// of the previous step (zero for a particle that had none). Returns
+    /// `false`, giving nothing, when there is no previous step's kick (the
+    /// first step, or a run that changed splitting): then take a
+    /// second-order step ([`GasRun::step_split`]) and
+    /// [`GasRun::keep_kicks_for_prediction`] instead.
+    ///
+    /// **The overlapped scheme.** The second-order scheme's flight needs
+    /// `Δv_n/2`, so the gas step must end before the flight can start. Here
+    /// the flight starts with the predictor `Δv_{n−1}/2` while the gas step
+    /// runs on another thread ([`GasRun::solve_overlapped`]); after the
+    /// flight the particle gets `Δv_n − Δv_{n−1}/2`
+    /// ([`GasRun::finish_kicks`]). Its velocity at the end of the step is
+    /// that of the second-order scheme, so the interphase momentum balance
+    /// is the same; the gas sees the same state. Only the displacement
+    /// changes, to `(v_n + Δv_{n−1}/2) dt`. For the drag relaxation of
+    /// [`GasRun::step_split`], `v_∞ − v_n = (v_∞ − v_{n−1}) e^{−λ}`, so
+    /// `Δv_{n−1} = Δv_n e^{λ}` and `Δv_{n−1}/2 = (v_∞ − v_n)(λ/2 + λ²/4 + …)`
+    /// against the exact `(v_∞ − v_n)(λ/2 − λ²/6 + …)`: off by `5λ²/12 · dt`
+    /// per step (second order: `λ²/12`), so the position error over a
+    /// fixed time is still O(dt²), five times that of second order. With
+    /// constant forces (gravity alone) it is exact. Between two flights a
+    /// particle gets `3/2 Δv_{n−1} − 1/2 Δv_{n−2}`: the Adams–Bashforth
+    /// extrapolation, with each step's kick completed at its end.
+    pub fn predict_kicks(&mut self, engine: &mut impl ParticleDynamics) -> bool {
+        if self.predictor_source.is_empty() {
+            return false;
+        }
+        let start = crate::timing::cpu_time();
+        self.take_views(engine);
+        self.predicted.clear();
+        self.predicted.resize(self.views.len(), DVec3::ZERO);
+        for ((p, predicted), &(id, kick)) in self
+            .views
+            .iter()
+            .zip(self.predicted.iter_mut())
+            .zip(&self.predictor_source)
+        {
+            if p.is_some_and(|p| p.id == id) {
+                *predicted = 0.5 * kick;
+            }
+        }
+        engine.kick_slots(&self.predicted);
+        self.totals.gas_cpu_seconds += crate::timing::cpu_time() - start;
+        true
+    }
+
+    /// Overlapped splitting, during the flight (needs no particles): the
+    /// gas step from the views [`GasRun::predict_kicks`] took, and this
+    /// step's kicks `Δv_n` less the predicted halves, kept for
+    /// [`GasRun::finish_kicks`] after the flight; `Δv_n` is kept to predict
+    /// the next step. CPU time is that of the calling thread.
+    pub fn solve_overlapped(&mut self, dt: f64) -> Result<(), GasError> {
+        let start = crate::timing::thread_cpu_time();
+        self.solve_from_views(dt, crate::timing::thread_cpu_time)?;
+        let kicks = &self.coupling.last_kicks();
+        self.deferred.clear();
+        self.deferred.extend(
+            self.views
+                .iter()
+                .zip(kicks.iter().zip(&self.predicted))
+                .map(|(p, (&kick, &predicted))| (p.map_or(u64::MAX, |p| p.id), kick - predicted)),
+        );
+        self.keep_kicks_for_prediction();
+        self.totals.gas_cpu_seconds += crate::timing::thread_cpu_time() - start;
+        Ok(())
+    }
+
+    /// Keeps the last step's kicks, with the ids they went to, to predict
+    /// the next overlapped step ([`GasRun::predict_kicks`]).
+    pub fn keep_kicks_for_prediction(&mut self) {
+        self.predictor_source.clear();
+        self.predictor_source.extend(
+            self.views
+                .iter()
+                .zip(self.coupling.last_kicks())
+                .map(|(p, &k)| (p.map_or(u64::MAX, |p| p.id), k)),
+        );
+    }
+
+    /// Every slot's particle now: the state the next gas step uses.
+    fn take_views(&mut self, engine: &impl ParticleDynamics) {
+        // One view of every slot serves the whole step: the particles do
+        // not move before the kicks.
+        self.views.clear();
+        self.views
+            .extend((0..engine.slots()).map(|i| engine.particle(i)));
+    }
+
+    /// The gas step from the views, this step's kicks into
+    /// `coupling.last_kicks`, and the step's statistics. `cpu` is the CPU
+    /// clock the solver's time is measured with.
+    fn solve_from_views(&mut self, dt: f64, cpu: fn() -> f64) -> Result<(), GasError> {
+        self.coupling.prepare(&mut self.gas, &self.views, dt);
+        let (solver_start, solver_wall) = (cpu(), std::time::Instant::now());
+        let stats = self.gas.step(dt)?;
+        self.totals.solver_cpu_seconds += cpu() - solver_start;
+        self.solver_wall_seconds += solver_wall.elapsed().as_secs_f64();
+        self.coupling.kicks(&self.gas, &self.views, dt);
         let courant = self.gas.substep_courant(dt);
         let pressure_drop = self.pressure_drop();
         let gas_support = pressure_drop + self.momentum_inflow();
@@ -221,12 +326,12 @@ impl GasRun {
         i.courant = i.courant.max(courant);
         i.pressure_drop_sum += pressure_drop;
         i.gas_support_sum += gas_support;
-        t.gas_cpu_seconds += crate::timing::cpu_time() - start;
         Ok(())
     }
 
-    /// Second-order splitting: the other half of the kicks of the last
-    /// [`GasRun::step_split`], after the flight, to the particles that are
+    /// Second-order and overlapped splitting: the rest of the kicks of the
+    /// last [`GasRun::step_split`] or [`GasRun::solve_overlapped`], after
+    /// the flight, to the particles that are
     /// still in their slots (a particle that left through an outlet during
     /// the flight does not get it; a slot refilled meanwhile by another
     /// particle neither).

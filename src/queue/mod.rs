@@ -4,8 +4,9 @@
 //! ties broken by the smaller particle index.
 
 /// A priority queue holding at most one event time per particle index.
-/// `Sync`, so that the engine's read-only passes may run in parallel.
-pub trait EventQueue: Sync {
+/// `Sync`, so that the engine's read-only passes may run in parallel; `Send`,
+/// so that the flight may run beside the gas step (overlapped splitting).
+pub trait EventQueue: Send + Sync {
     /// Empty queue able to hold indices `0..n` without reallocating.
     fn with_capacity(n: usize) -> Self
     where

@@ -114,6 +114,11 @@ pub struct WallSecondsByPart {
     /// Everything else: setup, recorders and output files, flow-step ends
     /// and checks.
     pub other: f64,
+    /// Overlapped splitting: time during which the gas step (counted in
+    /// `gas_coupling` and `gas_solver`) and the flight (in `re_prediction`
+    /// and `particle_motion`) ran at the same time. The other parts add up
+    /// to `wall_seconds` plus this.
+    pub overlapped: f64,
 }
 
 /// What a run reports in `summary.json`.
@@ -344,6 +349,15 @@ struct FlowLoop<'a, Q: EventQueue> {
 struct WallClock {
     gas: f64,
     advance: f64,
+    /// Overlapped splitting: time the gas step and the flight ran at once.
+    overlapped: f64,
+}
+
+/// `f()` and the wall-clock time it took (s).
+fn timed<T>(f: impl FnOnce() -> T) -> (f64, T) {
+    let start = Instant::now();
+    let value = f();
+    (start.elapsed().as_secs_f64(), value)
 }
 
 impl<Q: EventQueue> FlowLoop<'_, Q> {
@@ -366,10 +380,82 @@ impl<Q: EventQueue> FlowLoop<'_, Q> {
             re_prediction,
             particle_motion: self.clock.advance - re_prediction,
             other: 0.0,
+            overlapped: self.clock.overlapped,
         };
-        parts.other = wall_seconds
+        parts.other = wall_seconds + parts.overlapped
             - (parts.gas_coupling + parts.gas_solver + parts.re_prediction + parts.particle_motion);
         parts
+    }
+
+    /// The kicks before the flight: drag, pressure gradient and gravity
+    /// with gas (all of them, or the first half with second-order
+    /// splitting), gravity alone without. With overlapped splitting and a
+    /// kick from the previous step, only the predicted half kick, and
+    /// returns `true`: the gas step then runs beside the flight.
+    fn kick_before_flight(&mut self, dt: f64) -> anyhow::Result<bool> {
+        let s = self.s;
+        let gravity = s.domain.gravity;
+        let Some(g) = self.gas.as_mut() else {
+            if gravity != DVec3::ZERO && !self.engine.integrates_gravity() {
+                let kick = match s.time.splitting {
+                    Splitting::FirstOrder => 1.0,
+                    Splitting::SecondOrder | Splitting::Overlapped => 0.5,
+                };
+                self.kick_all(gravity * (kick * dt))?;
+            }
+            return Ok(false);
+        };
+        let start = Instant::now();
+        let overlapped =
+            s.time.splitting == Splitting::Overlapped && g.predict_kicks(&mut self.engine);
+        if !overlapped {
+            // Drag, pressure gradient and gravity: one kick, or its first
+            // half (second order; the rest follows the flight).
+            let half = s.time.splitting != Splitting::FirstOrder;
+            if let Err(e) = g.step_split(&mut self.engine, dt, half) {
+                anyhow::bail!(
+                    "{}: gas phase: {e}; {}",
+                    s.name,
+                    diagnose::gas_failure_causes(g, dt)
+                );
+            }
+            if s.time.splitting == Splitting::Overlapped {
+                g.keep_kicks_for_prediction();
+            }
+        }
+        self.clock.gas += start.elapsed().as_secs_f64();
+        for r in self.recorders.iter_mut() {
+            r.after_gas_kicks(&mut self.engine)?;
+        }
+        Ok(overlapped)
+    }
+
+    /// Overlapped splitting: the flight and the gas step at the same time,
+    /// on two threads when there are two (the results do not depend on it:
+    /// neither reads what the other writes).
+    fn fly_beside_gas_step(&mut self, dt: f64) -> anyhow::Result<()> {
+        let Some(g) = self.gas.as_mut() else {
+            unreachable!("an overlapped step has a gas phase");
+        };
+        let engine = &mut self.engine;
+        let start = Instant::now();
+        let ((flight, ()), (gas, solved)) = rayon::join(
+            || timed(|| engine.advance(dt)),
+            || timed(|| g.solve_overlapped(dt)),
+        );
+        let both = start.elapsed().as_secs_f64();
+        self.clock.advance += flight;
+        self.clock.gas += gas;
+        self.clock.overlapped += (flight + gas - both).max(0.0);
+        if let Err(e) = solved {
+            let s = self.s;
+            anyhow::bail!(
+                "{}: gas phase: {e}; {}",
+                s.name,
+                diagnose::gas_failure_causes(g, dt)
+            );
+        }
+        Ok(())
     }
 
     /// Flow step `step` (0-based) of `dt` (s); `last`: the run's last.
@@ -379,30 +465,7 @@ impl<Q: EventQueue> FlowLoop<'_, Q> {
         if let Some(f) = self.feeder.as_mut() {
             f.feed(s, &mut self.engine, dt);
         }
-        let kick = match s.time.splitting {
-            Splitting::FirstOrder => 1.0,
-            Splitting::SecondOrder => 0.5,
-        };
-        if let Some(g) = self.gas.as_mut() {
-            // Drag, pressure gradient and gravity: one kick, or its first
-            // half (second order; the second follows the flight).
-            let half = s.time.splitting == Splitting::SecondOrder;
-            let start = Instant::now();
-            let stepped = g.step_split(&mut self.engine, dt, half);
-            self.clock.gas += start.elapsed().as_secs_f64();
-            if let Err(e) = stepped {
-                anyhow::bail!(
-                    "{}: gas phase: {e}; {}",
-                    s.name,
-                    diagnose::gas_failure_causes(g, dt)
-                );
-            }
-            for r in self.recorders.iter_mut() {
-                r.after_gas_kicks(&mut self.engine)?;
-            }
-        } else if gravity != DVec3::ZERO && !self.engine.integrates_gravity() {
-            self.kick_all(gravity * (kick * dt))?;
-        }
+        let overlapped = self.kick_before_flight(dt)?;
         if self.forces
             && let Some((bad, k)) = diagnose::too_fast(&self.engine, dt)
         {
@@ -416,9 +479,13 @@ impl<Q: EventQueue> FlowLoop<'_, Q> {
                 diagnose::particle_failure(s, &self.engine, self.gas.as_ref(), &bad, &what)
             );
         }
-        let start = Instant::now();
-        self.engine.advance(dt);
-        self.clock.advance += start.elapsed().as_secs_f64();
+        if overlapped {
+            self.fly_beside_gas_step(dt)?;
+        } else {
+            let start = Instant::now();
+            self.engine.advance(dt);
+            self.clock.advance += start.elapsed().as_secs_f64();
+        }
         if let Some(stall) = self.engine.stall() {
             anyhow::bail!("{}: {}", s.name, diagnose::stall_message(s, stall));
         }
@@ -456,12 +523,12 @@ impl<Q: EventQueue> FlowLoop<'_, Q> {
                 );
             }
         }
-        if s.time.splitting == Splitting::SecondOrder {
+        if s.time.splitting != Splitting::FirstOrder {
             if let Some(g) = self.gas.as_mut() {
                 let start = Instant::now();
                 g.finish_kicks(&mut self.engine);
                 self.clock.gas += start.elapsed().as_secs_f64();
-                // The second half kicks, like the first: an event log
+                // The rest of the kicks, like the first part: an event log
                 // records the velocities they leave.
                 for r in self.recorders.iter_mut() {
                     r.after_gas_kicks(&mut self.engine)?;

@@ -324,6 +324,11 @@ pub enum Splitting {
     FirstOrder,
     /// Half kick, flight, half kick (Strang); the default.
     SecondOrder,
+    /// As second order, but the flight starts with half the previous
+    /// step's kick while the gas step runs beside it on another thread;
+    /// the rest of the kick follows the flight (`gas::flow::GasRun::predict_kicks`).
+    /// Without gas, the same as second order.
+    Overlapped,
 }
 
 /// `[time]`.

@@ -121,6 +121,7 @@ pub fn resolved_toml(s: &Scenario) -> String {
     let splitting = match s.time.splitting {
         Splitting::FirstOrder => "first-order",
         Splitting::SecondOrder => "second-order",
+        Splitting::Overlapped => "overlapped",
     };
     w.key("splitting", quote(splitting), "");
     w.comment(&format!(

@@ -1,7 +1,8 @@
 //! Export and import of a gas run's state between flow steps, for restart
 //! files: the gas fields ([`GasPhaseState`]), the coupling's running totals
 //! and the run totals, and the statistics of the current sample interval
-//! of `gas_timeseries.csv`.
+//! of `gas_timeseries.csv`, and the kicks that predict the next
+//! overlapped step.
 
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
@@ -22,6 +23,9 @@ pub struct GasRunState {
     clamped_faces: u64,
     exchange_impulse_particles: DVec3,
     exchange_impulse_gas: DVec3,
+    /// Overlapped splitting (version 3): the last step's kick per slot,
+    /// with the id of the particle it went to (empty otherwise).
+    predictor_source: Vec<(u64, DVec3)>,
 }
 
 impl GasRun {
@@ -35,6 +39,7 @@ impl GasRun {
             clamped_faces: self.coupling.clamped_faces,
             exchange_impulse_particles: self.coupling.exchange_impulse_particles,
             exchange_impulse_gas: self.coupling.exchange_impulse_gas,
+            predictor_source: self.predictor_source.clone(),
         }
     }
 
@@ -48,6 +53,7 @@ impl GasRun {
         self.coupling.clamped_faces = state.clamped_faces;
         self.coupling.exchange_impulse_particles = state.exchange_impulse_particles;
         self.coupling.exchange_impulse_gas = state.exchange_impulse_gas;
+        self.predictor_source = state.predictor_source;
         Ok(())
     }
 }
