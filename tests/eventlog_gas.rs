@@ -79,7 +79,9 @@ fn logged_and_verified(name: &str, s: &Scenario) -> (PathBuf, edpm::replay::Repl
 /// the jet bed (gas, a jet, dense collisions), replayed without the gas
 /// solver: a velocities block after each kick, so one per flow step with
 /// first-order splitting and two (both half kicks) with second order (the
-/// default; the riser runs it, the jet bed first order).
+/// default; the riser runs it, the jet bed first order) and overlapped
+/// splitting (the predicted and the completing kick; the jet bed again,
+/// its flow steps with the gas step beside the flight).
 #[test]
 fn gas_runs_log_and_replay_bit_for_bit() {
     for (name, path, set, blocks_per_step) in [
@@ -94,6 +96,12 @@ fn gas_runs_log_and_replay_bit_for_bit() {
             "scenarios/bubbling-bed-jet.toml",
             "time.splitting=first-order",
             1,
+        ),
+        (
+            "jet-overlapped",
+            "scenarios/bubbling-bed-jet.toml",
+            "time.splitting=overlapped",
+            2,
         ),
     ] {
         let s = scenario(path, &["time.t_end=0.02", set]);

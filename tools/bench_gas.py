@@ -20,6 +20,9 @@ two at a time (use it for accuracy only: the times then share the machine).
 Usage: python3 tools/bench_gas.py [--repeats 3 | --seeds 7,11] [--jobs 1]
        [--t-end 2.0] [--skip 0.5] [--dt 5e-5,1e-4,2e-4]
        [--bin target/release/edpm] [SCENARIO]
+
+A flow step may name a splitting after `@` (`--dt 5e-5,1.2e-3@overlapped`:
+`--set time.splitting=overlapped` for that row only).
 """
 
 import argparse
@@ -34,11 +37,13 @@ import tempfile
 from pathlib import Path
 
 
-def run(binary, scenario, dt, t_end, out, seed=None):
+def run(binary, scenario, step, t_end, out, seed=None):
     seed_args = ["--set", f"seed={seed}"] if seed is not None else []
+    dt, _, splitting = step.partition("@")
+    splitting_args = ["--set", f"time.splitting={splitting}"] if splitting else []
     subprocess.run(
         [binary, "run", scenario, "--out", str(out), "--t-end", str(t_end),
-         "--set", f"time.dt_flow={dt}", "--quiet"] + seed_args,
+         "--set", f"time.dt_flow={dt}", "--quiet"] + seed_args + splitting_args,
         check=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     summary = json.loads((out / "summary.json").read_text())
     with open(out / "gas_timeseries.csv") as f:
@@ -69,7 +74,8 @@ def main():
     p.add_argument("--jobs", type=int, default=1, help="runs at a time")
     p.add_argument("--t-end", type=float, default=2.0)
     p.add_argument("--skip", type=float, default=0.5, help="start-up excluded from averages (s)")
-    p.add_argument("--dt", default="5e-5,1e-4,2e-4")
+    p.add_argument("--dt", default="5e-5,1e-4,2e-4",
+                   help="flow steps (s), each optionally DT@SPLITTING")
     p.add_argument("--bin", default="target/release/edpm")
     a = p.parse_args()
     seeds = [int(x) for x in a.seeds.split(",")] if a.seeds else [None] * a.repeats
@@ -78,7 +84,7 @@ def main():
     with tempfile.TemporaryDirectory() as tmp, \
             concurrent.futures.ThreadPoolExecutor(max_workers=a.jobs) as pool:
         jobs = {(dt, r): pool.submit(run, a.bin, a.scenario, dt, a.t_end,
-                                     Path(tmp) / f"dt{dt}-{r}", seed)
+                                     Path(tmp) / f"dt{dt.replace('@', '-')}-{r}", seed)
                 for dt in dts for r, seed in enumerate(seeds)}
         for dt in dts:
             walls, cpus, drops, heights, courant, coll, held = [], [], [], [], [], [], []
@@ -93,7 +99,7 @@ def main():
                 coll.append(s["counters"]["pair_collisions"] + s["counters"]["wall_collisions"])
                 print(f"dt={dt} run {r}: {walls[-1]:.2f} s/s wall, dp {drops[-1]:.1f} Pa, "
                       f"height {heights[-1]:.4f} m", file=sys.stderr)
-            rows.append((float(dt), statistics.median(walls), statistics.median(cpus),
+            rows.append((dt, statistics.median(walls), statistics.median(cpus),
                          mean_and_error(drops), mean_and_error(heights),
                          max(courant), statistics.median(coll) / a.t_end,
                          mean_and_error(held)))
@@ -111,7 +117,7 @@ def main():
         dp_diff_err = math.hypot(dp_err, ref[3][1]) / ref[3][0]
         h_diff = (h - ref[4][0]) / ref[4][0]
         h_diff_err = math.hypot(h_err, ref[4][1]) / ref[4][0]
-        print(f"| {dt:g} | {wall:.2f} | {cpu:.2f} | {dp:.0f} ± {dp_err:.0f} | "
+        print(f"| {dt} | {wall:.2f} | {cpu:.2f} | {dp:.0f} ± {dp_err:.0f} | "
               f"{dp_diff:+.1%} ± {dp_diff_err:.1%} | {h:.4f} ± {h_err:.4f} | "
               f"{h_diff:+.1%} ± {h_diff_err:.1%} | {cour:.2f} | {coll:.3g} | "
               f"{n:.0f} ± {n_err:.0f} | {(n - ref[7][0]) / ref[7][0]:+.1%} ± "
