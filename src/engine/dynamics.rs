@@ -11,8 +11,9 @@ use glam::DVec3;
 use super::{Engine, ParticleView};
 use crate::queue::EventQueue;
 
-/// Particles moved by a model between flow steps (SI units).
-pub trait ParticleDynamics {
+/// Particles moved by a model between flow steps (SI units). `Sync`, so
+/// that the gas coupling may read the particles from parallel tasks.
+pub trait ParticleDynamics: Sync {
     /// Simulated time (s).
     fn time(&self) -> f64;
 
@@ -29,6 +30,11 @@ pub trait ParticleDynamics {
 
     /// The particle in `slot` at the current time; `None` for a free slot.
     fn particle(&self, slot: usize) -> Option<ParticleView>;
+
+    /// The id of the particle in `slot`; `None` for a free slot.
+    fn particle_id(&self, slot: usize) -> Option<u64> {
+        self.particle(slot).map(|p| p.id)
+    }
 
     /// Every particle at the current time.
     fn particles(&self) -> impl Iterator<Item = ParticleView> + '_;
@@ -63,6 +69,10 @@ impl<Q: EventQueue> ParticleDynamics for Engine<Q> {
 
     fn particle(&self, slot: usize) -> Option<ParticleView> {
         Engine::particle(self, slot)
+    }
+
+    fn particle_id(&self, slot: usize) -> Option<u64> {
+        self.active[slot].then(|| self.id[slot])
     }
 
     fn particles(&self) -> impl Iterator<Item = ParticleView> + '_ {

@@ -6,6 +6,7 @@
 //! gas VTK fields) is the recorders' work (`crate::run::recorders`).
 
 use glam::DVec3;
+use rayon::prelude::*;
 
 use super::config::GasConfig;
 use super::coupling::Coupling;
@@ -15,6 +16,9 @@ use crate::engine::{ParticleDynamics, ParticleView};
 
 mod state;
 pub use state::GasRunState;
+
+/// Slots per rayon task when the views of a step are taken.
+const VIEWS_PER_TASK: usize = 4096;
 
 /// What a gas run is built from: the resolved `[gas]` configuration, the
 /// grid over the box and gravity (m/s²).
@@ -49,6 +53,8 @@ pub struct GasRun {
     /// Overlapped splitting: the predicted half kick each slot got before
     /// this step's flight.
     predicted: Vec<DVec3>,
+    /// The kicks [`GasRun::finish_kicks`] gives, per slot (a buffer).
+    finishing: Vec<DVec3>,
     /// Every slot's particle at the start of the current step (a buffer
     /// kept between steps).
     views: Vec<Option<ParticleView>>,
@@ -133,6 +139,7 @@ impl GasRun {
             deferred: Vec::new(),
             predictor_source: Vec::new(),
             predicted: Vec::new(),
+            finishing: Vec::new(),
             views: Vec::new(),
             solver_wall_seconds: 0.0,
         }
@@ -291,9 +298,11 @@ impl GasRun {
     fn take_views(&mut self, engine: &impl ParticleDynamics) {
         // One view of every slot serves the whole step: the particles do
         // not move before the kicks.
-        self.views.clear();
-        self.views
-            .extend((0..engine.slots()).map(|i| engine.particle(i)));
+        (0..engine.slots())
+            .into_par_iter()
+            .with_min_len(VIEWS_PER_TASK)
+            .map(|i| engine.particle(i))
+            .collect_into_vec(&mut self.views);
     }
 
     /// The gas step from the views, this step's kicks into
@@ -331,20 +340,21 @@ impl GasRun {
 
     /// Second-order and overlapped splitting: the rest of the kicks of the
     /// last [`GasRun::step_split`] or [`GasRun::solve_overlapped`], after
-    /// the flight, to the particles that are
-    /// still in their slots (a particle that left through an outlet during
-    /// the flight does not get it; a slot refilled meanwhile by another
-    /// particle neither).
+    /// the flight, to the particles that are still in their slots (a
+    /// particle that left through an outlet during the flight does not get
+    /// it; a slot refilled meanwhile by another particle neither).
     pub fn finish_kicks(&mut self, engine: &mut impl ParticleDynamics) {
         let start = crate::timing::cpu_time();
-        let mut kicks = vec![DVec3::ZERO; engine.slots()];
-        for (slot, (kick, &(id, half))) in kicks.iter_mut().zip(&self.deferred).enumerate() {
-            if engine.particle(slot).is_some_and(|p| p.id == id) {
-                *kick = half;
+        self.finishing.clear();
+        self.finishing.resize(engine.slots(), DVec3::ZERO);
+        for (slot, (kick, &(id, rest))) in self.finishing.iter_mut().zip(&self.deferred).enumerate()
+        {
+            if engine.particle_id(slot) == Some(id) {
+                *kick = rest;
             }
         }
         self.deferred.clear();
-        engine.kick_slots(&kicks);
+        engine.kick_slots(&self.finishing);
         self.totals.gas_cpu_seconds += crate::timing::cpu_time() - start;
     }
 
