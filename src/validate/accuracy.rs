@@ -231,6 +231,10 @@ pub fn studies() -> Vec<Study> {
                     "second-order",
                     sweep("time.dt_flow", &dts[..4], &["time.splitting=second-order"]),
                 ),
+                line(
+                    "overlapped",
+                    sweep("time.dt_flow", &dts[..4], &["time.splitting=overlapped"]),
+                ),
             ],
             reference: setting(
                 "second-order, time.dt_flow = 1.25e-5",
