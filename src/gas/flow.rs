@@ -20,6 +20,27 @@ pub use state::GasRunState;
 /// Slots per rayon task when the views of a step are taken.
 const VIEWS_PER_TASK: usize = 4096;
 
+/// Per slot of `slots`, the kick of `entries[slot]` times `scale` (m/s)
+/// when the slot still holds the particle it was meant for (`id_of(slot)`
+/// equals the entry's id), else zero, into `out`: a particle that left
+/// since gets nothing, nor one that took its slot or one in a slot past
+/// `entries`.
+fn matched_kicks(
+    slots: usize,
+    id_of: impl Fn(usize) -> Option<u64>,
+    entries: &[(u64, DVec3)],
+    scale: f64,
+    out: &mut Vec<DVec3>,
+) {
+    out.clear();
+    out.resize(slots, DVec3::ZERO);
+    for (slot, (kick, &(id, entry))) in out.iter_mut().zip(entries).enumerate() {
+        if id_of(slot) == Some(id) {
+            *kick = scale * entry;
+        }
+    }
+}
+
 /// What a gas run is built from: the resolved `[gas]` configuration, the
 /// grid over the box and gravity (m/s²).
 pub struct GasSetup {
@@ -48,8 +69,10 @@ pub struct GasRun {
     /// particle it belongs to ([`GasRun::finish_kicks`]).
     deferred: Vec<(u64, DVec3)>,
     /// Overlapped splitting: the last step's kick per slot, with the id of
-    /// the particle it went to (kept across steps and in restart files).
+    /// the particle it went to, and that step's length (s) (kept across
+    /// steps and in restart files).
     predictor_source: Vec<(u64, DVec3)>,
+    predictor_dt: f64,
     /// Overlapped splitting: the predicted half kick each slot got before
     /// this step's flight.
     predicted: Vec<DVec3>,
@@ -84,7 +107,10 @@ pub struct GasTotals {
     /// coupling.
     pub exchange_impulse_particles: [f64; 3],
     pub exchange_impulse_gas: [f64; 3],
-    /// CPU time in the gas solver and the coupling (s).
+    /// CPU time in the gas solver and the coupling (s). With overlapped
+    /// splitting the gas step's share is that of the thread that ran it
+    /// ([`GasRun::solve_overlapped`]): compare it between runs of the same
+    /// splitting only.
     pub gas_cpu_seconds: f64,
     /// Of which in the gas solver alone (s).
     pub solver_cpu_seconds: f64,
@@ -138,6 +164,7 @@ impl GasRun {
             interval: IntervalStats::default(),
             deferred: Vec::new(),
             predictor_source: Vec::new(),
+            predictor_dt: 0.0,
             predicted: Vec::new(),
             finishing: Vec::new(),
             views: Vec::new(),
@@ -213,12 +240,13 @@ impl GasRun {
     }
 
     /// Overlapped splitting, before the flight: takes the views of every
-    /// slot (the state the gas step of this flow step will use) and gives
-    /// each particle the predicted half kick `Δv_{n−1}/2`, half of the kick
-    /// of the previous step (zero for a particle that had none). Returns
-    /// `false`, giving nothing, when there is no previous step's kick (the
-    /// first step, or a run that changed splitting): then take a
-    /// second-order step ([`GasRun::step_split`]) and
+    /// slot (the state the gas step of this flow step of `dt` (s) will use)
+    /// and gives each particle the predicted half kick `Δv_{n−1}/2`, half
+    /// of the kick of the previous step (scaled by the ratio of the step
+    /// lengths: a run's last step may be shorter; zero for a particle that
+    /// had none). Returns `false`, giving nothing, when there is no
+    /// previous step's kick (the first step): then take a second-order
+    /// step ([`GasRun::step_split`]) and
     /// [`GasRun::keep_kicks_for_prediction`] instead.
     ///
     /// **The overlapped scheme.** The second-order scheme's flight needs
@@ -226,36 +254,37 @@ impl GasRun {
     /// the flight starts with the predictor `Δv_{n−1}/2` while the gas step
     /// runs on another thread ([`GasRun::solve_overlapped`]); after the
     /// flight the particle gets `Δv_n − Δv_{n−1}/2`
-    /// ([`GasRun::finish_kicks`]). Its velocity at the end of the step is
-    /// that of the second-order scheme, so the interphase momentum balance
-    /// is the same; the gas sees the same state. Only the displacement
-    /// changes, to `(v_n + Δv_{n−1}/2) dt`. For the drag relaxation of
-    /// [`GasRun::step_split`], `v_∞ − v_n = (v_∞ − v_{n−1}) e^{−λ}`, so
-    /// `Δv_{n−1} = Δv_n e^{λ}` and `Δv_{n−1}/2 = (v_∞ − v_n)(λ/2 + λ²/4 + …)`
-    /// against the exact `(v_∞ − v_n)(λ/2 − λ²/6 + …)`: off by `5λ²/12 · dt`
-    /// per step (second order: `λ²/12`), so the position error over a
-    /// fixed time is still O(dt²), five times that of second order. With
-    /// constant forces (gravity alone) it is exact. Between two flights a
-    /// particle gets `3/2 Δv_{n−1} − 1/2 Δv_{n−2}`: the Adams–Bashforth
-    /// extrapolation, with each step's kick completed at its end.
-    pub fn predict_kicks(&mut self, engine: &mut impl ParticleDynamics) -> bool {
+    /// ([`GasRun::finish_kicks`]). Each particle still in its slot thus
+    /// gets exactly `Δv_n` over the step, as with second order, so the
+    /// interphase momentum balance is the same, and the gas sees the same
+    /// state; without collisions its end velocity is second order's. Only
+    /// the velocity during the flight changes, to `v_n + Δv_{n−1}/2`. For
+    /// the drag relaxation of [`GasRun::step_split`],
+    /// `v_∞ − v_n = (v_∞ − v_{n−1}) e^{−λ}`, so `Δv_{n−1} = Δv_n e^{λ}`
+    /// and `Δv_{n−1}/2 = (v_∞ − v_n)(λ/2 + λ²/4 + …)` against the exact
+    /// `(v_∞ − v_n)(λ/2 − λ²/6 + …)`: off by `5λ²/12 · dt` per step
+    /// (second order: `λ²/12`), so the position error over a fixed time is
+    /// still O(dt²), five times that of second order. With constant forces
+    /// (gravity alone) it is exact. Where a collision changed the velocity
+    /// in the last flight, or for a particle fed in this step (no
+    /// predictor), the predictor is off by `λ` times that change, as
+    /// first order is. Between two flights a particle gets
+    /// `3/2 Δv_{n−1} − 1/2 Δv_{n−2}`: the Adams–Bashforth extrapolation,
+    /// with each step's kick completed at its end.
+    pub fn predict_kicks(&mut self, engine: &mut impl ParticleDynamics, dt: f64) -> bool {
         if self.predictor_source.is_empty() {
             return false;
         }
         let start = crate::timing::cpu_time();
         self.take_views(engine);
-        self.predicted.clear();
-        self.predicted.resize(self.views.len(), DVec3::ZERO);
-        for ((p, predicted), &(id, kick)) in self
-            .views
-            .iter()
-            .zip(self.predicted.iter_mut())
-            .zip(&self.predictor_source)
-        {
-            if p.is_some_and(|p| p.id == id) {
-                *predicted = 0.5 * kick;
-            }
-        }
+        let views = &self.views;
+        matched_kicks(
+            views.len(),
+            |slot| views[slot].map(|p| p.id),
+            &self.predictor_source,
+            0.5 * (dt / self.predictor_dt),
+            &mut self.predicted,
+        );
         engine.kick_slots(&self.predicted);
         self.totals.gas_cpu_seconds += crate::timing::cpu_time() - start;
         true
@@ -265,7 +294,9 @@ impl GasRun {
     /// gas step from the views [`GasRun::predict_kicks`] took, and this
     /// step's kicks `Δv_n` less the predicted halves, kept for
     /// [`GasRun::finish_kicks`] after the flight; `Δv_n` is kept to predict
-    /// the next step. CPU time is that of the calling thread.
+    /// the next step. The CPU-time totals count the calling thread only:
+    /// work it hands to other threads (the coupling's maps, the pressure
+    /// solve's second half) is left out, flight work it takes over is in.
     pub fn solve_overlapped(&mut self, dt: f64) -> Result<(), GasError> {
         let start = crate::timing::thread_cpu_time();
         self.solve_from_views(dt, crate::timing::thread_cpu_time)?;
@@ -277,14 +308,15 @@ impl GasRun {
                 .zip(kicks.iter().zip(&self.predicted))
                 .map(|(p, (&kick, &predicted))| (p.map_or(u64::MAX, |p| p.id), kick - predicted)),
         );
-        self.keep_kicks_for_prediction();
+        self.keep_kicks_for_prediction(dt);
         self.totals.gas_cpu_seconds += crate::timing::thread_cpu_time() - start;
         Ok(())
     }
 
-    /// Keeps the last step's kicks, with the ids they went to, to predict
-    /// the next overlapped step ([`GasRun::predict_kicks`]).
-    pub fn keep_kicks_for_prediction(&mut self) {
+    /// Keeps the kicks of the last step, of `dt` (s), with the ids they went
+    /// to, to predict the next overlapped step ([`GasRun::predict_kicks`]).
+    pub fn keep_kicks_for_prediction(&mut self, dt: f64) {
+        self.predictor_dt = dt;
         self.predictor_source.clear();
         self.predictor_source.extend(
             self.views
@@ -345,14 +377,13 @@ impl GasRun {
     /// it; a slot refilled meanwhile by another particle neither).
     pub fn finish_kicks(&mut self, engine: &mut impl ParticleDynamics) {
         let start = crate::timing::cpu_time();
-        self.finishing.clear();
-        self.finishing.resize(engine.slots(), DVec3::ZERO);
-        for (slot, (kick, &(id, rest))) in self.finishing.iter_mut().zip(&self.deferred).enumerate()
-        {
-            if engine.particle_id(slot) == Some(id) {
-                *kick = rest;
-            }
-        }
+        matched_kicks(
+            engine.slots(),
+            |slot| engine.particle_id(slot),
+            &self.deferred,
+            1.0,
+            &mut self.finishing,
+        );
         self.deferred.clear();
         engine.kick_slots(&self.finishing);
         self.totals.gas_cpu_seconds += crate::timing::cpu_time() - start;
@@ -439,5 +470,41 @@ impl GasRun {
                 self.pressure_drop() + self.momentum_inflow()
             },
         ]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use glam::DVec3;
+
+    use super::matched_kicks;
+
+    /// A kick reaches only the particle it was computed for: slot 0 keeps
+    /// its particle, slot 1 was emptied and refilled by a new particle,
+    /// slot 2 was emptied, slot 3 was free when the kicks were computed
+    /// (its entry carries no id) and holds a particle now.
+    #[test]
+    fn kicks_reach_only_the_particles_they_were_meant_for() {
+        let entries = [
+            (10, DVec3::new(1.0, 2.0, 3.0)),
+            (11, DVec3::X),
+            (12, DVec3::Y),
+            (u64::MAX, DVec3::Z),
+        ];
+        let now = [Some(10), Some(20), None, Some(13)];
+        let mut out = vec![DVec3::ONE; 9];
+        matched_kicks(now.len(), |slot| now[slot], &entries, 0.5, &mut out);
+        assert_eq!(
+            out,
+            [
+                DVec3::new(0.5, 1.0, 1.5),
+                DVec3::ZERO,
+                DVec3::ZERO,
+                DVec3::ZERO
+            ]
+        );
+        // More entries than slots: the extra entries are dropped.
+        matched_kicks(1, |slot| now[slot], &entries, 1.0, &mut out);
+        assert_eq!(out, [DVec3::new(1.0, 2.0, 3.0)]);
     }
 }

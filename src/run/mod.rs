@@ -407,7 +407,7 @@ impl<Q: EventQueue> FlowLoop<'_, Q> {
         };
         let start = Instant::now();
         let overlapped =
-            s.time.splitting == Splitting::Overlapped && g.predict_kicks(&mut self.engine);
+            s.time.splitting == Splitting::Overlapped && g.predict_kicks(&mut self.engine, dt);
         if !overlapped {
             // Drag, pressure gradient and gravity: one kick, or its first
             // half (second order; the rest follows the flight).
@@ -420,7 +420,7 @@ impl<Q: EventQueue> FlowLoop<'_, Q> {
                 );
             }
             if s.time.splitting == Splitting::Overlapped {
-                g.keep_kicks_for_prediction();
+                g.keep_kicks_for_prediction(dt);
             }
         }
         self.clock.gas += start.elapsed().as_secs_f64();
@@ -447,25 +447,26 @@ impl<Q: EventQueue> FlowLoop<'_, Q> {
         self.clock.advance += flight;
         self.clock.gas += gas;
         self.clock.overlapped += (flight + gas - both).max(0.0);
-        if let Err(e) = solved {
+        // A stalled flight is reported by the caller, as without overlap.
+        if let Err(e) = solved
+            && self.engine.stall().is_none()
+        {
             let s = self.s;
             anyhow::bail!(
-                "{}: gas phase: {e}; {}",
+                "{}: gas phase, in the flow step that ended at t = {:.6} s (the particles had flown it beside the gas step): {e}; {}",
                 s.name,
+                self.engine.time(),
                 diagnose::gas_failure_causes(g, dt)
             );
         }
         Ok(())
     }
 
-    /// Flow step `step` (0-based) of `dt` (s); `last`: the run's last.
-    fn step(&mut self, step: u64, dt: f64, last: bool) -> anyhow::Result<()> {
+    /// Stops the run when, with forces, a particle would move further in a
+    /// flow step of `dt` (s) than the event clock resolves (or its velocity
+    /// is not finite).
+    fn check_speeds(&self, dt: f64) -> anyhow::Result<()> {
         let s = self.s;
-        let gravity = s.domain.gravity;
-        if let Some(f) = self.feeder.as_mut() {
-            f.feed(s, &mut self.engine, dt);
-        }
-        let overlapped = self.kick_before_flight(dt)?;
         if self.forces
             && let Some((bad, k)) = diagnose::too_fast(&self.engine, dt)
         {
@@ -479,6 +480,18 @@ impl<Q: EventQueue> FlowLoop<'_, Q> {
                 diagnose::particle_failure(s, &self.engine, self.gas.as_ref(), &bad, &what)
             );
         }
+        Ok(())
+    }
+
+    /// Flow step `step` (0-based) of `dt` (s); `last`: the run's last.
+    fn step(&mut self, step: u64, dt: f64, last: bool) -> anyhow::Result<()> {
+        let s = self.s;
+        let gravity = s.domain.gravity;
+        if let Some(f) = self.feeder.as_mut() {
+            f.feed(s, &mut self.engine, dt);
+        }
+        let overlapped = self.kick_before_flight(dt)?;
+        self.check_speeds(dt)?;
         if overlapped {
             self.fly_beside_gas_step(dt)?;
         } else {
@@ -528,6 +541,12 @@ impl<Q: EventQueue> FlowLoop<'_, Q> {
                 let start = Instant::now();
                 g.finish_kicks(&mut self.engine);
                 self.clock.gas += start.elapsed().as_secs_f64();
+                // Overlapped: this step's kick was first given now, so it is
+                // checked before anything records it (second order's
+                // second half equals the first, checked before the flight).
+                if s.time.splitting == Splitting::Overlapped {
+                    self.check_speeds(dt)?;
+                }
                 // The rest of the kicks, like the first part: an event log
                 // records the velocities they leave.
                 for r in self.recorders.iter_mut() {

@@ -24,8 +24,10 @@ pub struct GasRunState {
     exchange_impulse_particles: DVec3,
     exchange_impulse_gas: DVec3,
     /// Overlapped splitting (version 3): the last step's kick per slot,
-    /// with the id of the particle it went to (empty otherwise).
+    /// with the id of the particle it went to (empty otherwise), and that
+    /// step's length (s).
     predictor_source: Vec<(u64, DVec3)>,
+    predictor_dt: f64,
 }
 
 impl GasRun {
@@ -40,6 +42,7 @@ impl GasRun {
             exchange_impulse_particles: self.coupling.exchange_impulse_particles,
             exchange_impulse_gas: self.coupling.exchange_impulse_gas,
             predictor_source: self.predictor_source.clone(),
+            predictor_dt: self.predictor_dt,
         }
     }
 
@@ -54,6 +57,7 @@ impl GasRun {
         self.coupling.exchange_impulse_particles = state.exchange_impulse_particles;
         self.coupling.exchange_impulse_gas = state.exchange_impulse_gas;
         self.predictor_source = state.predictor_source;
+        self.predictor_dt = state.predictor_dt;
         Ok(())
     }
 }
