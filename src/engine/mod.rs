@@ -685,6 +685,26 @@ impl<Q: EventQueue> Engine<Q> {
             })
     }
 
+    /// The slot of the particle whose speed times `dt` (s) is the most of
+    /// its diameter, with that number, among those where it exceeds
+    /// `limit`: a non-finite number counts as the most (the last such slot
+    /// is named), and of equal numbers the first slot. Reads only the
+    /// kinematics, so that a check every flow step costs little.
+    pub fn fastest_beyond(&self, dt: f64, limit: f64) -> Option<(usize, f64)> {
+        let mut worst: Option<(usize, f64)> = None;
+        for (i, (k, &active)) in self.kin.iter().zip(&self.active).enumerate() {
+            if !active {
+                continue;
+            }
+            let moved = k.vel.length() * dt / (2.0 * k.radius);
+            let beyond = moved.is_nan() || moved > limit;
+            if beyond && worst.is_none_or(|w| moved.is_nan() || moved > w.1) {
+                worst = Some((i, moved));
+            }
+        }
+        worst
+    }
+
     /// All particles at the current time, in slot order.
     pub fn particles(&self) -> impl Iterator<Item = ParticleView> + '_ {
         (0..self.kin.len()).filter_map(|i| self.particle(i))

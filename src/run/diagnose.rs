@@ -121,27 +121,21 @@ pub(super) fn bad_particle_message<Q: EventQueue>(
 /// The particle that moves the most of its own diameters in a flow step of
 /// `dt`, when that is more than the event clock resolves
 /// ([`crate::scenario::limits::CLOCK_RESOLUTION_DIAMETERS`]), with the
-/// number; checked after the kicks of a flow step, before its events.
+/// number; checked after the kicks of a flow step, before its events (and
+/// with overlapped splitting after the completing kicks too).
 pub(super) fn too_fast<Q: EventQueue>(engine: &Engine<Q>, dt: f64) -> Option<(BadParticle, f64)> {
     let limit = crate::scenario::limits::CLOCK_RESOLUTION_DIAMETERS;
-    let mut worst: Option<(BadParticle, f64)> = None;
-    for p in engine.particles() {
-        let k = p.vel.length() * dt / (2.0 * p.radius);
-        // NaN counts as too fast (and as faster than any number).
-        let beyond = k.is_nan() || k > limit;
-        if beyond && worst.as_ref().is_none_or(|w| k.is_nan() || k > w.1) {
-            let bad = BadParticle {
-                id: p.id,
-                position: p.pos,
-                velocity: p.vel,
-                omega: p.omega,
-                radius: p.radius,
-                outside_axis: None,
-            };
-            worst = Some((bad, k));
-        }
-    }
-    worst
+    let (slot, k) = engine.fastest_beyond(dt, limit)?;
+    let p = engine.particle(slot)?;
+    let bad = BadParticle {
+        id: p.id,
+        position: p.pos,
+        velocity: p.vel,
+        omega: p.omega,
+        radius: p.radius,
+        outside_axis: None,
+    };
+    Some((bad, k))
 }
 
 /// A particle in trouble (`what`), as an error message with the likely
