@@ -8,7 +8,7 @@ use std::path::Path;
 
 use glam::DVec3;
 
-use crate::scenario::{Scenario, limits, resolved_toml};
+use crate::scenario::{Scenario, Splitting, limits, resolved_toml};
 
 /// Measured CPU cost of the per-step particle work (event engine, kicks,
 /// re-prediction) per particle and flow step (s), on one core of this
@@ -90,6 +90,7 @@ pub fn report(s: &Scenario) -> String {
         ),
     }
     lines.push(run_time(s, steps, initial as f64, fed, cells as f64));
+    lines.push(threads(s, rayon::current_num_threads()));
     if s.warnings.is_empty() {
         lines.push("warnings: none".into());
     } else {
@@ -125,6 +126,22 @@ fn run_time(s: &Scenario, steps: u64, initial: f64, fed: f64, cells: f64) -> Str
     format!(
         "run time (rough estimate, per-step work only): {range} CPU on one core of this machine, from the unit costs measured on the planar riser runs (0.48 µs per particle and 1.07 µs per gas cell per flow step, docs/scaling.md); collisions come on top (0.5 to 1 µs each: 1 to 2 x 10^6 per CPU second, results/benchmarks.md), and dense beds collide far more often than the dilute riser"
     )
+}
+
+/// The threads a run would use (`RAYON_NUM_THREADS`, else the machine's
+/// cores), and for a gas run on two or more whether the gas step runs
+/// beside the particles' flight.
+fn threads(s: &Scenario, threads: usize) -> String {
+    let line = format!("threads: {threads}");
+    match (&s.gas, s.time.splitting) {
+        (Some(_), Splitting::Overlapped) => format!(
+            "{line}; the gas step runs beside the particles' flight (time.splitting = \"overlapped\")"
+        ),
+        (Some(_), _) if threads >= 2 => format!(
+            "{line}; hint: time.splitting = \"overlapped\" runs the gas step beside the particles' flight, which made the riser and the jet bed 1.5-1.7x faster on two cores than on one (README, \"Choosing settings\")"
+        ),
+        _ => line,
+    }
 }
 
 fn seconds(t: f64) -> String {

@@ -331,6 +331,32 @@ fn check_prints_resolved_scenario_and_report() {
     let err = stderr(&o);
     assert!(err.contains("gas cells: 1800 (40 x 45 x 1)"), "{err}");
     assert!(err.contains("warning: gas.cells[0]: gas cells of"), "{err}");
+
+    // Threads: a gas run on two is pointed to overlapped splitting, one
+    // with it is told the gas step runs beside the flight, and a run on
+    // one thread gets no hint.
+    let check_on = |threads: &str, extra: &[&str]| {
+        let o = Command::new(EDPM)
+            .current_dir(ROOT)
+            .env("RAYON_NUM_THREADS", threads)
+            .args([&["check", "scenarios/bubbling-bed-jet.toml"], extra].concat())
+            .output()
+            .expect("edpm runs");
+        assert_success(&o);
+        stderr(&o)
+    };
+    let err = check_on("2", &[]);
+    assert!(
+        err.contains("threads: 2; hint: time.splitting = \"overlapped\""),
+        "{err}"
+    );
+    let err = check_on("2", &["--set", "time.splitting=overlapped"]);
+    assert!(
+        err.contains("threads: 2; the gas step runs beside"),
+        "{err}"
+    );
+    let err = check_on("1", &[]);
+    assert!(err.contains("threads: 1\n"), "{err}");
 }
 
 #[test]
