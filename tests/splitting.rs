@@ -124,16 +124,21 @@ fn errors(splitting: &str) -> Vec<f64> {
         .collect()
 }
 
+/// Each error over the next (the flow step halved) lies in `range`.
+fn assert_halving_ratios(e: &[f64], range: std::ops::Range<f64>) {
+    for w in e.windows(2) {
+        let ratio = w[0] / w[1];
+        assert!(range.contains(&ratio), "ratio {ratio}: {e:?}");
+    }
+}
+
 #[test]
 fn settling_with_gas_first_order_splitting_converges_at_order_one() {
     let e = errors("first-order");
     // O(dt): the leading error is dt v_t (1 − e^{−t/τ})/2 ≈ 3.9e-4 m at
     // 4 ms (GasRun::step_split); halving dt halves it, to within the
     // O(dt²) remainder (λ = dt/τ ≤ 0.2, so ratios in [1.8, 2.2]).
-    for w in e.windows(2) {
-        let ratio = w[0] / w[1];
-        assert!((1.8..2.2).contains(&ratio), "ratio {ratio}: {e:?}");
-    }
+    assert_halving_ratios(&e, 1.8..2.2);
     assert!((2.5e-4..5e-4).contains(&e[0].abs()), "{e:?}");
 }
 
@@ -143,10 +148,7 @@ fn settling_with_gas_second_order_splitting_converges_at_order_two() {
     // O(dt²): λ²/12 per step (GasRun::step_split), ≈ 1e-5 m at 4 ms:
     // halving dt quarters it (ratios in [3.5, 4.5] allow the O(dt³) rest
     // at λ = 0.2), and it is at least 20 times below first order.
-    for w in e.windows(2) {
-        let ratio = w[0] / w[1];
-        assert!((3.5..4.5).contains(&ratio), "ratio {ratio}: {e:?}");
-    }
+    assert_halving_ratios(&e, 3.5..4.5);
     assert!(e[0].abs() < 2e-5, "{e:?}");
 }
 
@@ -159,10 +161,7 @@ fn settling_with_gas_overlapped_splitting_converges_at_order_two() {
     // error and of the opposite sign. Halving dt quarters it (ratios in
     // [3.5, 4.5], as for second order), and at 4 ms it stays at least 5
     // times below first order's 3.9e-4 m.
-    for w in e.windows(2) {
-        let ratio = w[0] / w[1];
-        assert!((3.5..4.5).contains(&ratio), "ratio {ratio}: {e:?}");
-    }
+    assert_halving_ratios(&e, 3.5..4.5);
     assert!(e[0].abs() < 8e-5, "{e:?}");
     let second = errors("second-order");
     let ratio = e[0] / second[0];

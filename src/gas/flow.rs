@@ -41,6 +41,19 @@ fn matched_kicks(
     }
 }
 
+/// Each of `kicks` (one per slot) with the id of the particle the view of
+/// its slot shows (`u64::MAX` for a free slot, which no particle has), for
+/// [`matched_kicks`] to give later.
+fn with_ids<'a>(
+    views: &'a [Option<ParticleView>],
+    kicks: impl Iterator<Item = DVec3> + 'a,
+) -> impl Iterator<Item = (u64, DVec3)> + 'a {
+    views
+        .iter()
+        .zip(kicks)
+        .map(|(p, k)| (p.map_or(u64::MAX, |p| p.id), k))
+}
+
 /// What a gas run is built from: the resolved `[gas]` configuration, the
 /// grid over the box and gravity (m/s²).
 pub struct GasSetup {
@@ -221,16 +234,12 @@ impl GasRun {
         let start = crate::timing::cpu_time();
         self.take_views(engine);
         self.solve_from_views(dt, crate::timing::cpu_time)?;
-        let kicks = &self.coupling.last_kicks();
+        let kicks = self.coupling.last_kicks();
         if half {
             let halves: Vec<DVec3> = kicks.iter().map(|k| 0.5 * *k).collect();
             self.deferred.clear();
-            self.deferred.extend(
-                self.views
-                    .iter()
-                    .zip(&halves)
-                    .map(|(p, &k)| (p.map_or(u64::MAX, |p| p.id), k)),
-            );
+            self.deferred
+                .extend(with_ids(&self.views, halves.iter().copied()));
             engine.kick_slots(&halves);
         } else {
             engine.kick_slots(kicks);
@@ -300,14 +309,10 @@ impl GasRun {
     pub fn solve_overlapped(&mut self, dt: f64) -> Result<(), GasError> {
         let start = crate::timing::thread_cpu_time();
         self.solve_from_views(dt, crate::timing::thread_cpu_time)?;
-        let kicks = &self.coupling.last_kicks();
+        let rest = (self.coupling.last_kicks().iter()).zip(&self.predicted);
         self.deferred.clear();
-        self.deferred.extend(
-            self.views
-                .iter()
-                .zip(kicks.iter().zip(&self.predicted))
-                .map(|(p, (&kick, &predicted))| (p.map_or(u64::MAX, |p| p.id), kick - predicted)),
-        );
+        self.deferred
+            .extend(with_ids(&self.views, rest.map(|(&kick, &p)| kick - p)));
         self.keep_kicks_for_prediction(dt);
         self.totals.gas_cpu_seconds += crate::timing::thread_cpu_time() - start;
         Ok(())
@@ -318,12 +323,8 @@ impl GasRun {
     pub fn keep_kicks_for_prediction(&mut self, dt: f64) {
         self.predictor_dt = dt;
         self.predictor_source.clear();
-        self.predictor_source.extend(
-            self.views
-                .iter()
-                .zip(self.coupling.last_kicks())
-                .map(|(p, &k)| (p.map_or(u64::MAX, |p| p.id), k)),
-        );
+        let kicks = self.coupling.last_kicks().iter().copied();
+        self.predictor_source.extend(with_ids(&self.views, kicks));
     }
 
     /// Every slot's particle now: the state the next gas step uses.
