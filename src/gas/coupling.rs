@@ -79,8 +79,7 @@ impl ParticleStencil {
     #[inline(always)]
     fn fill(&mut self, grid: &GridGeometry, pos: DVec3, side: f64) {
         for a in 0..3 {
-            axis_weights_into(&mut self.cells[a], grid, a, pos, side, false);
-            axis_weights_into(&mut self.faces[a], grid, a, pos, side, true);
+            axis_weights_into(&mut self.cells[a], &mut self.faces[a], grid, a, pos, side);
         }
     }
 
@@ -115,6 +114,23 @@ impl ParticleStencil {
         let mut sum = 0.0;
         self.for_each(axis, strides, |i, w| sum += w * field[i]);
         sum
+    }
+
+    /// Two fields interpolated in one pass over the stencil (each sum in
+    /// the order of a pass of its own).
+    #[inline(always)]
+    fn interpolate_two(
+        &self,
+        axis: Option<usize>,
+        strides: [usize; 3],
+        (first, second): (&[f64], &[f64]),
+    ) -> (f64, f64) {
+        let mut sums = (0.0, 0.0);
+        self.for_each(axis, strides, |i, w| {
+            sums.0 += w * first[i];
+            sums.1 += w * second[i];
+        });
+        sums
     }
 }
 
@@ -268,8 +284,7 @@ impl Coupling {
                 let (Some(p), Some(st)) = (slot, stencil) else {
                     return (0.0, 1.0);
                 };
-                let eps = st.interpolate(None, cell_strides, fraction);
-                let rho = st.interpolate(None, cell_strides, density);
+                let (eps, rho) = st.interpolate_two(None, cell_strides, (fraction, density));
                 let mut u = DVec3::ZERO;
                 for &a in axes {
                     u[a] = st.interpolate(Some(a), face_strides[a], &velocity[a]);
@@ -364,8 +379,8 @@ impl Coupling {
                 let mut u = DVec3::ZERO;
                 let mut grad_p = DVec3::ZERO;
                 for &a in axes {
-                    u[a] = st.interpolate(Some(a), face_strides[a], &velocity[a]);
-                    grad_p[a] = st.interpolate(Some(a), face_strides[a], &gradient[a]);
+                    (u[a], grad_p[a]) =
+                        st.interpolate_two(Some(a), face_strides[a], (&velocity[a], &gradient[a]));
                 }
                 let force = k * (u - p.vel) - sphere_volume(p.radius) * grad_p + p.mass * gravity;
                 force * (phi * dt / p.mass)

@@ -137,6 +137,27 @@ impl AxisWeights {
         self.len += 1;
     }
 
+    /// One entry of weight 1 at `offset`, which the caller keeps below
+    /// 2^32 (a cleared fast path's single cell).
+    #[inline(always)]
+    fn set_single(&mut self, offset: usize) {
+        debug_assert!(u32::try_from(offset).is_ok());
+        self.offset[0] = offset as u32;
+        self.weight[0] = 1.0;
+        self.len = 1;
+    }
+
+    /// Two entries, weights `first` and `1 − first` (offsets below 2^32).
+    #[inline(always)]
+    fn set_pair(&mut self, offset: usize, first: f64, next: usize) {
+        debug_assert!(u32::try_from(offset.max(next)).is_ok());
+        self.offset[0] = offset as u32;
+        self.weight[0] = first;
+        self.offset[1] = next as u32;
+        self.weight[1] = 1.0 - first;
+        self.len = 2;
+    }
+
     /// Number of entries.
     #[inline]
     pub fn len(&self) -> usize {
@@ -184,6 +205,19 @@ fn axis_overlap(
     out
 }
 
+/// `x.floor()` without a call: baseline x86-64 has no rounding
+/// instruction, so `f64::floor` is a libm call. The same value for every
+/// `x` (truncation is exact below 2^52; the sign of a zero may differ).
+#[inline(always)]
+fn floor_inline(x: f64) -> f64 {
+    if x.abs() < 4.0e15 {
+        let t = x as i64 as f64;
+        if t > x { t - 1.0 } else { t }
+    } else {
+        x.floor()
+    }
+}
+
 /// [`axis_overlap`] written into `out` (cleared first), avoiding a copy
 /// of the weights in hot loops.
 #[inline(always)]
@@ -208,20 +242,30 @@ fn axis_overlap_into(
             None => true,
         };
         if inside {
-            let k = a.floor();
-            let split = k + 1.0;
-            let wrap = |k: f64| match clip {
-                Some(_) => k as usize,
-                None => (k as i64).rem_euclid(n as i64) as usize,
+            // k = ⌊a⌋, as an integer and as a float; on a walled axis
+            // a ≥ lo ≥ 0, where truncation is the floor.
+            let (k, k_float) = match clip {
+                Some(_) => {
+                    let k = a as i64;
+                    (k, k as f64)
+                }
+                None => {
+                    let k_float = floor_inline(a);
+                    (k_float as i64, k_float)
+                }
+            };
+            let split = k_float + 1.0;
+            let index = |k: i64| match clip {
+                Some(_) => k as usize * stride,
+                None => k.rem_euclid(n as i64) as usize * stride,
             };
             let first = (split.min(b) - a) / (b - a);
             if first >= 1.0 - SLIVER {
-                out.push(wrap(k) * stride, 1.0);
+                out.set_single(index(k));
             } else if first <= SLIVER {
-                out.push(wrap(split) * stride, 1.0);
+                out.set_single(index(k + 1));
             } else {
-                out.push(wrap(k) * stride, first);
-                out.push(wrap(split) * stride, 1.0 - first);
+                out.set_pair(index(k), first, index(k + 1));
             }
             if clip.is_none() && out.len == 2 && out.offset[0] == out.offset[1] {
                 // One periodic interval: both pieces are the same cell.
@@ -435,33 +479,41 @@ impl Iterator for WeightsIter {
 
 impl ExactSizeIterator for WeightsIter {}
 
-/// 1D weights, written into `out`, of the cube of side `side` (m) centred at `pos` along `axis`
-/// with unstrided indices: over the cells (`faces == false`), or over the
-/// control volumes of the faces normal to `axis` (`faces == true`, interior
-/// faces only on a walled axis, as in [`face_weights`]). The product of
-/// these factors over the axes gives [`cell_weights`] and [`face_weights`].
+/// 1D weights along `axis` of the cube of side `side` (m) centred at `pos`,
+/// with unstrided indices: into `cells` over the cells, and into `faces`
+/// over the control volumes of the faces normal to `axis` (interior faces
+/// only on a walled axis, as in [`face_weights`]). The products of these
+/// factors over the axes give [`cell_weights`] and [`face_weights`]. Both
+/// share the particle's cell coordinate (one division per axis).
 #[inline(always)]
 pub fn axis_weights_into(
-    out: &mut AxisWeights,
+    cells: &mut AxisWeights,
+    faces: &mut AxisWeights,
     grid: &GridGeometry,
     axis: usize,
     pos: DVec3,
     side: f64,
-    faces: bool,
 ) {
     if axis == 2 && grid.planar {
-        out.len = 0;
-        if !faces {
-            out.push(0, 1.0);
-        }
+        cells.len = 0;
+        cells.push(0, 1.0);
+        faces.len = 0;
         return;
     }
     let h = grid.h[axis];
     let t = (pos[axis] - grid.lo[axis]) / h;
+    let half = 0.5 * side / h;
     let n = grid.n[axis];
-    let (shift, lo) = if faces { (0.5, 1.0) } else { (0.0, 0.0) };
-    let clip = (!grid.periodic[axis]).then_some((lo, n as f64));
-    axis_overlap_into(out, t + shift, 0.5 * side / h, n, clip, 1);
+    let walled = !grid.periodic[axis];
+    axis_overlap_into(cells, t, half, n, walled.then_some((0.0, n as f64)), 1);
+    axis_overlap_into(
+        faces,
+        t + 0.5,
+        half,
+        n,
+        walled.then_some((1.0, n as f64)),
+        1,
+    );
 }
 
 /// Weights of the cube of side `side` (m) centred at `pos` (m) over the
