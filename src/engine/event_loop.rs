@@ -172,15 +172,6 @@ impl<Q: EventQueue> Engine<Q> {
         None
     }
 
-    /// Re-predicts now, on every thread, what the next [`Engine::advance`]
-    /// would re-predict first (hard spheres; the same predictions, so the
-    /// same results).
-    pub fn predict_before_flight(&mut self) {
-        if self.config.model == ContactModel::Hard && self.stall.is_none() {
-            self.ensure_predicted();
-        }
-    }
-
     #[inline]
     pub(super) fn ensure_predicted(&mut self) {
         if self.needs_prediction {

@@ -351,10 +351,6 @@ struct WallClock {
     advance: f64,
     /// Overlapped splitting: time the gas step and the flight ran at once.
     overlapped: f64,
-    /// Overlapped splitting: the last step's flight, with its
-    /// re-prediction, and its gas step (s).
-    last_flight: f64,
-    last_gas_step: f64,
 }
 
 /// `f()` and the wall-clock time it took (s).
@@ -442,23 +438,15 @@ impl<Q: EventQueue> FlowLoop<'_, Q> {
             unreachable!("an overlapped step has a gas phase");
         };
         let engine = &mut self.engine;
-        // When the last flight outlasted its gas step, the re-prediction
-        // runs first on every thread: the flight's serial rest then starts
-        // beside the gas step, not after a re-prediction on one thread.
-        let mut predicted = 0.0;
-        if self.clock.last_flight > self.clock.last_gas_step {
-            (predicted, ()) = timed(|| engine.predict_before_flight());
-        }
         let start = Instant::now();
         let ((flight, ()), (gas, solved)) = rayon::join(
             || timed(|| engine.advance(dt)),
             || timed(|| g.solve_overlapped(dt)),
         );
         let both = start.elapsed().as_secs_f64();
-        self.clock.advance += predicted + flight;
+        self.clock.advance += flight;
         self.clock.gas += gas;
         self.clock.overlapped += (flight + gas - both).max(0.0);
-        (self.clock.last_flight, self.clock.last_gas_step) = (predicted + flight, gas);
         // A stalled flight is reported by the caller, as without overlap.
         if let Err(e) = solved
             && self.engine.stall().is_none()
