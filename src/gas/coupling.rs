@@ -159,10 +159,9 @@ pub fn relaxation_factor(lambda: f64) -> f64 {
 /// Per-particle coupling data, indexed by engine slot.
 #[derive(Default)]
 pub struct Coupling {
-    /// Drag coefficient K = V_p β/ε_s (kg/s) per slot.
-    drag_coefficient: Vec<f64>,
-    /// Relaxation factor φ(K dt/m) per slot.
-    relaxation: Vec<f64>,
+    /// Drag coefficient K = V_p β/ε_s (kg/s) and relaxation factor
+    /// φ(K dt/m) per slot.
+    drag: Vec<(f64, f64)>,
     /// Mapping stencil per slot, from [`Coupling::prepare`] (positions do
     /// not change before [`Coupling::kicks`]).
     stencils: Vec<Option<ParticleStencil>>,
@@ -276,7 +275,7 @@ impl Coupling {
         let gravity = gas.gravity();
         let axes = gas.grid.velocity_axes();
         let (fraction, density, velocity) = (&gas.gas_fraction, &gas.density, &gas.velocity);
-        let (drag, relaxation): (Vec<f64>, Vec<f64>) = views
+        views
             .par_iter()
             .zip(self.stencils.par_iter())
             .with_min_len(PARTICLES_PER_TASK)
@@ -293,10 +292,9 @@ impl Coupling {
                 let k = particle_drag_coefficient(law, eps, rho, mu, 2.0 * p.radius, slip);
                 (k, relaxation_factor(k * dt / p.mass))
             })
-            .unzip();
-        (self.drag_coefficient, self.relaxation) = (drag, relaxation);
-        let per_slot = self.stencils.iter().zip(&self.drag_coefficient);
-        for ((slot, (stencil, &k)), &phi) in views.iter().zip(per_slot).zip(&self.relaxation) {
+            .collect_into_vec(&mut self.drag);
+        let per_slot = self.stencils.iter().zip(&self.drag);
+        for (slot, (stencil, &(k, phi))) in views.iter().zip(per_slot) {
             let (Some(p), Some(st)) = (slot, stencil) else {
                 continue;
             };
@@ -363,16 +361,12 @@ impl Coupling {
         let gravity = gas.gravity();
         let (_, face_strides) = strides(&gas.grid);
         let (axes, gradient) = (gas.grid.velocity_axes(), &self.gradient);
-        let per_slot = self
-            .stencils
-            .par_iter()
-            .zip(self.drag_coefficient.par_iter());
+        let per_slot = self.stencils.par_iter().zip(self.drag.par_iter());
         views
             .par_iter()
             .zip(per_slot)
-            .zip(self.relaxation.par_iter())
             .with_min_len(PARTICLES_PER_TASK)
-            .map(|((slot, (stencil, &k)), &phi)| {
+            .map(|(slot, (stencil, &(k, phi)))| {
                 let (Some(p), Some(st)) = (slot, stencil) else {
                     return DVec3::ZERO;
                 };
