@@ -137,8 +137,9 @@ impl AxisWeights {
         self.len += 1;
     }
 
-    /// One entry of weight 1 at `offset`, which the caller keeps below
-    /// 2^32 (a cleared fast path's single cell).
+    /// One entry, of weight 1, at `offset` (below 2^32: scenario
+    /// validation allows at most 5e7 gas cells); for the fast path of
+    /// [`axis_overlap_into`], which writes every entry it keeps.
     #[inline(always)]
     fn set_single(&mut self, offset: usize) {
         debug_assert!(u32::try_from(offset).is_ok());
@@ -147,7 +148,8 @@ impl AxisWeights {
         self.len = 1;
     }
 
-    /// Two entries, weights `first` and `1 − first` (offsets below 2^32).
+    /// Two entries, weights `first` and `1 − first` (offsets below 2^32, as
+    /// in [`AxisWeights::set_single`]).
     #[inline(always)]
     fn set_pair(&mut self, offset: usize, first: f64, next: usize) {
         debug_assert!(u32::try_from(offset.max(next)).is_ok());
@@ -484,7 +486,7 @@ impl ExactSizeIterator for WeightsIter {}
 /// over the control volumes of the faces normal to `axis` (interior faces
 /// only on a walled axis, as in [`face_weights`]). The products of these
 /// factors over the axes give [`cell_weights`] and [`face_weights`]. Both
-/// share the particle's cell coordinate (one division per axis).
+/// share the particle's cell coordinate and half width in cells.
 #[inline(always)]
 pub fn axis_weights_into(
     cells: &mut AxisWeights,
@@ -646,6 +648,26 @@ where
 mod tests {
     use super::*;
     use proptest::prelude::*;
+
+    #[test]
+    fn floor_inline_is_the_floor() {
+        // Integers, their neighbours one ulp away, both signs, the
+        // truncation limit and beyond: every value must equal f64::floor's
+        // (a zero's sign aside).
+        let mut xs = vec![
+            0.0, -0.0, 0.5, -0.5, 1e-300, -1e-300, 3.9e15, -3.9e15, 4.1e15, -4.1e15,
+        ];
+        for k in -5..=5 {
+            let k = f64::from(k);
+            xs.extend([k, k.next_up(), k.next_down(), k + 0.25, k - 0.25]);
+        }
+        xs.extend([2f64.powi(52) - 0.5, -(2f64.powi(52) - 0.5), 1e300, -1e300]);
+        for x in xs {
+            assert_eq!(floor_inline(x), x.floor(), "x = {x:e}");
+        }
+        assert!(floor_inline(f64::NAN).is_nan());
+        assert_eq!(floor_inline(f64::NEG_INFINITY), f64::NEG_INFINITY);
+    }
 
     fn grid3(n: [usize; 3], periodic: [bool; 3]) -> GridGeometry {
         GridGeometry::new(
