@@ -577,9 +577,13 @@ fn touching_sliding_pair_does_not_hang_the_engine() {
 
 #[test]
 fn planar_mode_keeps_every_particle_in_the_mid_plane() {
-    // planar-bed.toml to 0.15 s: the 400 spheres fall (10 cm in 0.14 s),
-    // collide with friction (mu = 0.1, beta_0 = 0.3) and reach the floor.
-    let s = shipped_scenario("planar-bed.toml", &["time.t_end=0.15"]);
+    // planar-bed.toml to 0.15 s with hard spheres: the 400 spheres fall
+    // (10 cm in 0.14 s), collide with friction (mu = 0.1, beta_0 = 0.3)
+    // and reach the floor.
+    let s = shipped_scenario(
+        "planar-bed.toml",
+        &["time.t_end=0.15", "engine.model=\"hard\""],
+    );
     let mut e = engine(&s);
     for _ in 0..steps(&s) {
         flow_step(&s, &mut e);

@@ -85,12 +85,12 @@ fn log_then_replay_is_bit_identical_in_every_configuration() {
         Scenario::from_file_with_overrides("scenarios/box-walls.toml", &["time.t_end=0.05".into()])
             .unwrap(),
     ));
-    // Planar with friction.
+    // Planar with friction, hard spheres.
     cases.push((
         "planar-bed",
         Scenario::from_file_with_overrides(
             "scenarios/planar-bed.toml",
-            &["time.t_end=0.05".into()],
+            &["time.t_end=0.05".into(), "engine.model=\"hard\"".into()],
         )
         .unwrap(),
     ));

@@ -341,6 +341,7 @@ struct FlowLoop<'a, Q: EventQueue> {
     /// Anything that acts at flow steps: forces (kicks) or inlet feeding.
     forces: bool,
     clock: WallClock,
+    guard_watch: diagnose::GuardWatch,
 }
 
 /// Wall-clock time (s) of a run in the gas step and kicks, and in
@@ -528,6 +529,11 @@ impl<Q: EventQueue> FlowLoop<'_, Q> {
                 r.before_sync(&mut self.engine)?;
             }
             self.engine.end_flow_step();
+            let (counters, time, n) =
+                (&self.engine.counters, self.engine.time(), self.engine.len());
+            if let Some(why) = self.guard_watch.observe(s, counters, time, n) {
+                anyhow::bail!("{}: {why}", s.name);
+            }
             if let Some(bad) = self.engine.find_bad_particle() {
                 anyhow::bail!(
                     "{}: {}",
@@ -604,14 +610,8 @@ fn simulate<Q: EventQueue>(
         }
         None => 0,
     };
-    std::fs::create_dir_all(out_dir).with_context(|| format!("creating {}", out_dir.display()))?;
-    outdir::clear_outputs(out_dir)?;
-    outdir::write_manifest(
-        out_dir,
-        &outdir::manifest(run_id, &s.name, opts.log.as_deref()),
-    )?;
-    write_atomic(&out_dir.join("scenario.toml"), s.effective_toml.as_bytes())?;
-    write_atomic(&out_dir.join("resolved.toml"), resolved.as_bytes())?;
+    let manifest = outdir::manifest(run_id, &s.name, opts.log.as_deref());
+    outdir::prepare(out_dir, &manifest, &s.effective_toml, &resolved)?;
     let plan = FlowSteps::new(s.time.t_end, s.time.dt_flow);
     let mut recorders = recorders::for_run(
         s,
@@ -638,6 +638,7 @@ fn simulate<Q: EventQueue>(
         recorders,
         restarts,
         clock: WallClock::default(),
+        guard_watch: diagnose::GuardWatch::default(),
     };
     let outcome = (first_step..plan.steps)
         .try_for_each(|step| run.step(step, plan.dt(step), step + 1 == plan.steps));

@@ -162,6 +162,22 @@ pub fn clear_outputs(out_dir: &Path) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// Creates `out_dir`, clears a previous run's outputs from it and writes
+/// the new run's `run.json`, `scenario.toml` (the scenario as given, with
+/// its overrides) and `resolved.toml` (every default filled in).
+pub fn prepare(
+    out_dir: &Path,
+    m: &RunManifest,
+    scenario_toml: &str,
+    resolved_toml: &str,
+) -> anyhow::Result<()> {
+    std::fs::create_dir_all(out_dir).with_context(|| format!("creating {}", out_dir.display()))?;
+    clear_outputs(out_dir)?;
+    write_manifest(out_dir, m)?;
+    write_atomic(&out_dir.join("scenario.toml"), scenario_toml.as_bytes())?;
+    write_atomic(&out_dir.join("resolved.toml"), resolved_toml.as_bytes())
+}
+
 /// Writes `run.json` at the start of a run.
 pub fn write_manifest(out_dir: &Path, m: &RunManifest) -> anyhow::Result<()> {
     let json = serde_json::to_string_pretty(m).context("encoding run.json")?;
