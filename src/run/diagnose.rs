@@ -115,8 +115,9 @@ impl GuardWatch {
         particles: usize,
     ) -> Option<String> {
         let collisions = c.pair_collisions + c.wall_collisions;
-        let step_collisions = collisions - self.collisions;
-        let step_guarded = c.guard_collisions - self.guarded;
+        // Counters only grow; saturating keeps any restored state harmless.
+        let step_collisions = collisions.saturating_sub(self.collisions);
+        let step_guarded = c.guard_collisions.saturating_sub(self.guarded);
         (self.collisions, self.guarded) = (collisions, c.guard_collisions);
         if 2 * step_guarded <= step_collisions {
             self.steps = 0;
@@ -280,8 +281,8 @@ pub(super) fn particle_failure<Q: EventQueue>(
 mod tests {
     use super::*;
 
-    /// Cumulative counters after `steps` steps of `collisions` collisions
-    /// each, `guarded` of them altered by the guard.
+    /// Cumulative counters: `collisions` pair collisions so far, `guarded`
+    /// of them altered by the guard.
     fn counters(collisions: u64, guarded: u64) -> Counters {
         Counters {
             pair_collisions: collisions,
