@@ -129,7 +129,7 @@ impl GuardWatch {
         self.steps += 1;
         (self.steps >= GUARD_DOMINATED_STEPS).then(|| {
             format!(
-                "the collapse guard (collisions.max_collisions_per_step = {}) made more than half of the collisions elastic in each of the last {} flow steps (t = {:?} to {:?} s; in the last one {} of {} collisions, {:.0} per particle): the particles rest in contact, where binary instantaneous collisions no longer describe them, and the collision rate grows without bound. Remedy: engine.model = \"hybrid\" (soft where collisions are no longer binary) or \"soft\"; a shorter time.dt_flow does not help (measured: planar-bed.toml stops at 0.25 s with 2.5e-5 s)",
+                "the collapse guard (collisions.max_collisions_per_step = {}) made more than half of the collisions elastic in each of the last {} flow steps (t = {:?} to {:?} s; in the last one {} of {} collisions, {:.0} per particle): the particles rest in contact, where binary instantaneous collisions no longer describe them, and the collision rate grows without bound. Remedy: engine.model = \"hybrid\" (soft where collisions are no longer binary) or \"soft\"; a shorter time.dt_flow does not help",
                 s.collisions.max_collisions_per_step,
                 self.steps,
                 self.since,

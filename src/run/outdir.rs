@@ -123,7 +123,7 @@ pub fn check_reuse(out_dir: &Path, force: bool) -> anyhow::Result<()> {
 /// writes in [`OWN_DIRS`] (a directory left empty goes too), and the event
 /// log named in its `run.json` when that lies in `out_dir`. Anything else
 /// is left alone.
-pub fn clear_outputs(out_dir: &Path) -> anyhow::Result<()> {
+fn clear_outputs(out_dir: &Path) -> anyhow::Result<()> {
     let remove = |p: &Path| match std::fs::remove_file(p) {
         Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
             Err(e).with_context(|| format!("deleting {} of an earlier run", p.display()))
@@ -179,7 +179,7 @@ pub fn prepare(
 }
 
 /// Writes `run.json` at the start of a run.
-pub fn write_manifest(out_dir: &Path, m: &RunManifest) -> anyhow::Result<()> {
+fn write_manifest(out_dir: &Path, m: &RunManifest) -> anyhow::Result<()> {
     let json = serde_json::to_string_pretty(m).context("encoding run.json")?;
     write_atomic(&out_dir.join("run.json"), json.as_bytes())
 }
