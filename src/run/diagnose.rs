@@ -86,12 +86,8 @@ pub(super) const GUARD_DOMINATED_STEPS: u32 = 100;
 /// hard-sphere model no longer describes them: the kicks at each flow step
 /// then feed energy into elastic contacts that nothing removes
 /// (results/stress.md, finding 3), and the collision rate grows without
-/// bound. Measured on scenarios/planar-bed.toml with the hard model: pair
-/// collisions per step 2.3e3 at 0.29 s, 2.5e4 at 0.33 s, 1.8e5 at 0.35 s
-/// (the guard's share 0.4 %, 26 %, 80 %), 2.8e6 at 0.385 s, an hour's run
-/// for 0.5 s; a flow step of 2.5e-5 s instead of 1e-4 s does not prevent
-/// it. Not kept in restart files: after a restart the count starts
-/// anew.
+/// bound (measured in results/stress.md, finding 8). Not kept in restart
+/// files: after a restart the count starts anew.
 #[derive(Default)]
 pub(super) struct GuardWatch {
     /// Collisions and guard-altered collisions at the last flow-step end.
