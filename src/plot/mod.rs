@@ -82,13 +82,16 @@ fn render_png(
     write_atomic(path, &png)
 }
 
-/// Encodes an 8-bit RGB buffer as PNG.
+/// Encodes an 8-bit RGB buffer as PNG, with the fast deflate: a
+/// 1135 × 1200 particle picture takes 4 ms instead of the 52 ms of the
+/// balanced level, for a file about 30 % larger (results/benchmarks.md,
+/// sixteenth session).
 fn encode_png(rgb: &[u8], w: u32, h: u32) -> anyhow::Result<Vec<u8>> {
     let mut out = Vec::new();
     let mut enc = png::Encoder::new(&mut out, w, h);
     enc.set_color(png::ColorType::Rgb);
     enc.set_depth(png::BitDepth::Eight);
-    enc.set_compression(png::Compression::Balanced);
+    enc.set_compression(png::Compression::Fast);
     let mut writer = enc.write_header().context("PNG header")?;
     writer.write_image_data(rgb).context("PNG data")?;
     writer.finish().context("PNG end")?;
