@@ -218,7 +218,8 @@ fn check_state(engine: &Engine<impl EventQueue>, case: &Case, shifts: &[DVec3]) 
 /// How the particles are kicked at each flow-step end.
 #[derive(Clone, Copy, PartialEq)]
 enum Kicks {
-    /// Gravity alike for all (`kick_all`): cells mode keeps its pairs.
+    /// Gravity alike for all (`kick_all`): each particle keeps its pair
+    /// (lists mode with `keep_pairs`, as `edpm run` sets it without gas).
     Uniform,
     /// Gravity plus a random velocity per particle, 0.3 of the thermal
     /// speed (`kick_slots`, as the gas coupling kicks): every pair is found
@@ -257,6 +258,7 @@ fn run_kicked<Q: EventQueue>(
         record_events: true,
         neighbours,
         prefetch,
+        keep_pairs: kicks == Kicks::Uniform,
         ..Default::default()
     };
     let mut engine: Engine<Q> = Engine::new(

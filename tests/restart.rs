@@ -159,6 +159,20 @@ fn a_restarted_box_in_cells_mode_continues_bit_for_bit() {
     );
 }
 
+/// The same box in lists mode, which keeps its pairs too
+/// (`engine.keep_pairs`, set without gas).
+#[test]
+fn a_restarted_box_in_lists_mode_continues_bit_for_bit() {
+    let lists = ["--set", "engine.neighbours=\"lists\""];
+    restart_is_bit_identical(
+        "box-lists",
+        "scenarios/box-walls.toml",
+        "0.04",
+        "0.02",
+        &lists,
+    );
+}
+
 #[test]
 fn a_killed_run_leaves_a_complete_restart_file_that_continues_it() {
     let dir = fresh_dir("killed");

@@ -224,20 +224,26 @@ impl<Q: EventQueue> Engine<Q> {
         for c in &mut self.cell_state {
             c.candidate.time -= shift;
         }
+        for c in &mut self.list_pairs {
+            c.time -= shift;
+        }
         self.needs_prediction = true;
         self.retry_pending_reinsertions();
     }
 
     /// Re-predicts every particle: the predictions (pure functions of the
     /// state) in parallel, then queued in slot order, so that the queue is
-    /// the same whatever the thread count. Cells mode keeps each particle's
-    /// pair after uniform kicks only ([`Engine::prediction_after_uniform_kick`]),
+    /// the same whatever the thread count. After uniform kicks each particle
+    /// keeps its pair (cells mode, and lists mode with
+    /// [`super::EngineConfig::keep_pairs`]; [`Engine::prediction_after_uniform_kick`]),
     /// and after other kicks finds every particle's pair in one sweep that
     /// tests each pair once ([`Engine::sweep_pairs`]).
     #[inline]
     pub(super) fn predict_all(&mut self) {
         let cells = self.config.neighbours == NeighbourSearch::Cells;
-        let keep_pairs = self.kicks_uniform && cells && self.config.model == ContactModel::Hard;
+        let keep_pairs = self.kicks_uniform
+            && (cells || !self.list_pairs.is_empty())
+            && self.config.model == ContactModel::Hard;
         let swept = cells && !keep_pairs;
         let mut sweep = std::mem::take(&mut self.pair_sweep);
         if swept {
@@ -277,20 +283,23 @@ impl<Q: EventQueue> Engine<Q> {
         self.kicks_uniform = true;
     }
 
-    /// Cells mode, after kicks that changed every velocity alike: relative
-    /// motions are unchanged, so the pair kept at particle i's last
-    /// prediction (Eq. 45 depends on relative position and velocity only)
-    /// is still its earliest, and only its boundary event is new. The same
-    /// holds for a particle that had no pair. A kept pair whose partner has
-    /// had an event since, or a slot never searched, gets a full prediction.
-    /// Not bit-identical to a full prediction: the kept time was computed
-    /// from the states before the kicks (round-off).
+    /// After kicks that changed every velocity alike: relative motions are
+    /// unchanged, so the pair kept at particle i's last prediction (Eq. 45
+    /// depends on relative position and velocity only) is still its
+    /// earliest, and only its boundary event is new. The same holds for a
+    /// particle that had no pair, as long as its new boundary event comes
+    /// before the horizon of that search (lists mode: the old boundary
+    /// event). A kept pair whose partner has had an event since, a horizon
+    /// passed, or a slot never searched gets a full prediction. Not
+    /// bit-identical to a full prediction: the kept time was computed from
+    /// the states before the kicks (round-off).
     #[inline]
     fn prediction_after_uniform_kick(&self, i: usize) -> Prediction {
-        let kept = self.cell_state[i].candidate;
+        let kept = self.kept_pair(i);
+        let pair = kept.has_pair();
         if kept.time.is_nan()
             || kept.time < self.now
-            || (kept.time.is_finite()
+            || (pair
                 && self.event_state[neighbours::unpack(kept.entry).0 as usize].counter
                     != kept.partner_count)
         {
@@ -298,11 +307,25 @@ impl<Q: EventQueue> Engine<Q> {
         }
         let ki = self.kin_now(i);
         let (best, event) = self.boundary_event(i, &ki);
+        if !pair && self.now + best > kept.time {
+            return self.prediction(i);
+        }
         let found = PairFound {
             best: kept.time - self.now,
-            best_entry: kept.time.is_finite().then_some(kept.entry),
+            best_entry: pair.then_some(kept.entry),
         };
         self.choose(best, event, &found)
+    }
+
+    /// Particle i's kept pair ([`PairCandidate`]): cells mode, or lists mode
+    /// with [`super::EngineConfig::keep_pairs`].
+    #[inline]
+    pub(super) fn kept_pair(&self, i: usize) -> PairCandidate {
+        if self.config.neighbours == NeighbourSearch::Cells {
+            self.cell_state[i].candidate
+        } else {
+            self.list_pairs[i]
+        }
     }
 
     /// Finds particle i's earliest event (Eq. 46) and queues it. The
@@ -358,6 +381,8 @@ impl<Q: EventQueue> Engine<Q> {
     fn apply(&mut self, i: usize, p: &Prediction) {
         if self.config.neighbours == NeighbourSearch::Cells {
             self.cell_state[i].candidate = p.candidate;
+        } else if !self.list_pairs.is_empty() {
+            self.list_pairs[i] = p.candidate;
         }
         self.event_state[i].scheduled = p.event;
         self.queue.set(i as u32, self.now + p.delay);
@@ -373,7 +398,7 @@ impl<Q: EventQueue> Engine<Q> {
     #[inline]
     pub(super) fn predict_after_crossing(&mut self, i: usize, axis: usize, up: bool) {
         let kept = self.cell_state[i].candidate;
-        if kept.time.is_finite()
+        if kept.has_pair()
             && self.event_state[neighbours::unpack(kept.entry).0 as usize].counter
                 != kept.partner_count
         {
@@ -384,7 +409,7 @@ impl<Q: EventQueue> Engine<Q> {
         let search = PairSearch::new(self, i, ki, f64::INFINITY);
         let mut found = self.search_cells(search, CellScan::NewLayer { axis, up });
         let now = self.now;
-        if kept.time.is_finite() && now + found.best >= kept.time {
+        if kept.has_pair() && now + found.best >= kept.time {
             found.best = kept.time - now;
             found.best_entry = Some(kept.entry);
         }
@@ -665,7 +690,8 @@ impl PairFound {
         best_entry: None,
     };
 
-    /// The best pair found, to keep for a later partial prediction.
+    /// The best pair found, or the search's horizon without one, to keep
+    /// for a later partial prediction.
     #[inline]
     fn candidate(&self, now: f64, event_state: &[EventState]) -> PairCandidate {
         match self.best_entry {
@@ -674,7 +700,7 @@ impl PairFound {
                 entry,
                 partner_count: event_state[neighbours::unpack(entry).0 as usize].counter,
             },
-            None => PairCandidate::NONE,
+            None => PairCandidate::none_before(now + self.best),
         }
     }
 }

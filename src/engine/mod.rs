@@ -36,7 +36,7 @@ pub use state::{EngineState, SlotState};
 pub use store::ParticleView;
 
 use soft_stepper::{SOFT_START_OVERLAP, SoftStepper};
-use store::{CellState, EventState, Kinematics, Spins};
+use store::{CellState, EventState, Kinematics, PairCandidate, Spins};
 
 use glam::DVec3;
 use rand::SeedableRng;
@@ -75,6 +75,12 @@ pub struct EngineConfig {
     /// Whether partner searches prefetch ([`Engine::prefetches`]); never
     /// changes a result.
     pub prefetch: Prefetch,
+    /// Lists mode, hard spheres: keep each particle's earliest pair (16
+    /// bytes a particle) so that re-predicting after a uniform kick
+    /// ([`Engine::kick_all`]) needs only the boundary events. For runs whose
+    /// kicks are all uniform (gravity without gas). Cells mode always keeps
+    /// its pairs.
+    pub keep_pairs: bool,
 }
 
 /// Whether the partner searches gather candidates in batches and prefetch
@@ -195,8 +201,17 @@ impl Default for EngineConfig {
             model: ContactModel::Hard,
             soft: SoftConfig::default(),
             prefetch: Prefetch::Auto,
+            keep_pairs: false,
         }
     }
+}
+
+/// Whether an engine of `config` keeps each particle's pair in lists mode
+/// ([`EngineConfig::keep_pairs`]).
+fn keeps_list_pairs(config: &EngineConfig) -> bool {
+    config.keep_pairs
+        && config.neighbours == NeighbourSearch::Lists
+        && config.model == ContactModel::Hard
 }
 
 /// Slab next to the `lo` face of `axis` where particles are inserted.
@@ -255,6 +270,9 @@ pub struct Engine<Q: EventQueue> {
     /// Cells mode: the cell each particle is in and its best pair at its
     /// last prediction (empty in lists mode).
     cell_state: Vec<CellState>,
+    /// Lists mode with [`EngineConfig::keep_pairs`]: each particle's best
+    /// pair at its last prediction (empty otherwise).
+    list_pairs: Vec<PairCandidate>,
     free_slots: Vec<u32>,
     next_id: u64,
 
@@ -401,6 +419,7 @@ impl<Q: EventQueue> Engine<Q> {
         };
         let n = particles.len();
         let cells_mode = config.neighbours == NeighbourSearch::Cells;
+        let keeps_list_pairs = keeps_list_pairs(&config);
         let mut engine = Engine {
             cells: CellGrid::new(domain.lo, domain.hi, cell_width, periodic, n),
             domain,
@@ -420,6 +439,7 @@ impl<Q: EventQueue> Engine<Q> {
             shell_centres: Vec::with_capacity(if cells_mode { 0 } else { n }),
             face_mask: Vec::with_capacity(n),
             cell_state: Vec::with_capacity(if cells_mode { n } else { 0 }),
+            list_pairs: Vec::with_capacity(if keeps_list_pairs { n } else { 0 }),
             free_slots: Vec::new(),
             next_id: 0,
             // Cells mode keeps no lists.
@@ -562,6 +582,9 @@ impl<Q: EventQueue> Engine<Q> {
             } else {
                 self.shell_centres[s] = p.pos;
             }
+            if let Some(kept) = self.list_pairs.get_mut(s) {
+                *kept = PairCandidate::UNPREDICTED;
+            }
             self.is_soft[s] = false;
             return s;
         }
@@ -577,6 +600,9 @@ impl<Q: EventQueue> Engine<Q> {
             self.cell_state.push(CellState::NEW);
         } else {
             self.shell_centres.push(p.pos);
+        }
+        if self.keeps_list_pairs() {
+            self.list_pairs.push(PairCandidate::UNPREDICTED);
         }
         self.is_soft.push(false);
         let slots = self.kin.len();
@@ -748,6 +774,18 @@ impl<Q: EventQueue> Engine<Q> {
         self.config.neighbours == NeighbourSearch::Cells
     }
 
+    /// Whether lists mode keeps each particle's pair
+    /// ([`EngineConfig::keep_pairs`], hard spheres only).
+    pub(super) fn keeps_list_pairs(&self) -> bool {
+        keeps_list_pairs(&self.config)
+    }
+
+    /// Whether each particle's pair is kept (cells mode, or
+    /// [`Engine::keeps_list_pairs`]).
+    pub(super) fn keeps_pairs(&self) -> bool {
+        self.uses_cells() || self.keeps_list_pairs()
+    }
+
     /// Heap memory of the engine by structure (bytes, allocated
     /// capacity): what `edpm bench` reports per particle.
     pub fn memory_breakdown(&self) -> Vec<(&'static str, usize)> {
@@ -765,6 +803,7 @@ impl<Q: EventQueue> Engine<Q> {
             ("shell", bytes(&self.shell_centres)),
             ("face_mask", bytes(&self.face_mask)),
             ("cell_state", bytes(&self.cell_state)),
+            ("list_pairs", bytes(&self.list_pairs)),
             ("pair_sweep", self.pair_sweep.heap_bytes()),
             ("is_soft", bytes(&self.is_soft)),
             ("free_slots", bytes(&self.free_slots)),

@@ -16,7 +16,7 @@ use glam::DVec3;
 use rand_xoshiro::Xoshiro256PlusPlus;
 use serde::{Deserialize, Serialize};
 
-use super::store::{CellState, EventState, Kinematics, PairCandidate, Spins};
+use super::store::{CellState, EventState, Kinematics, NO_PAIR, PairCandidate, Spins};
 use super::{CollapseReport, ContactModel, Counters, Engine, SoftStats};
 use crate::neighbours::{CellEntry, CellGrid, NeighbourLists};
 use crate::particles::NewParticle;
@@ -202,19 +202,50 @@ impl<Q: EventQueue> Engine<Q> {
             counters: self.counters,
             collapse_reports: self.collapse_reports.clone(),
             soft_stats: self.soft_stats,
-            kept_pairs: (self.uses_cells() && self.kicks_uniform).then(|| {
-                self.cell_state
-                    .iter()
-                    .map(|c| {
-                        (
-                            c.candidate.time,
-                            c.candidate.entry,
-                            c.candidate.partner_count,
-                        )
+            kept_pairs: (self.keeps_pairs() && self.kicks_uniform).then(|| {
+                (0..self.kin.len())
+                    .map(|i| {
+                        let c = self.kept_pair(i);
+                        (c.time, c.entry, c.partner_count)
                     })
                     .collect()
             }),
         })
+    }
+
+    /// The cells of cells mode and the kept pairs of `state`, checked by
+    /// [`Engine::import_state`]. A state written after uniform kicks only
+    /// keeps its pairs, so that the restarted run re-predicts as the
+    /// original did.
+    fn import_kept_pairs(&mut self, state: &EngineState) {
+        let kept = |i: usize| {
+            state
+                .kept_pairs
+                .as_deref()
+                .map_or(PairCandidate::UNPREDICTED, |k| {
+                    let (time, entry, partner_count) = k[i];
+                    PairCandidate {
+                        time,
+                        entry,
+                        partner_count,
+                    }
+                })
+        };
+        if self.uses_cells() {
+            self.cell_state = state
+                .slots
+                .iter()
+                .enumerate()
+                .map(|(i, s)| CellState {
+                    candidate: kept(i),
+                    cell: s.cell.map(|c| c as u32),
+                })
+                .collect();
+        }
+        if self.keeps_list_pairs() {
+            self.list_pairs = (0..state.slots.len()).map(kept).collect();
+        }
+        self.kicks_uniform = state.kept_pairs.is_some();
     }
 
     /// Replaces the state of an engine built from the same scenario with
@@ -250,9 +281,11 @@ impl<Q: EventQueue> Engine<Q> {
             );
         }
         if let Some(kept) = &state.kept_pairs
-            && (!self.uses_cells()
+            && (!self.keeps_pairs()
                 || kept.len() != n
-                || kept.iter().any(|&(_, entry, _)| !entry_fits(entry, n)))
+                || kept
+                    .iter()
+                    .any(|&(_, entry, _)| entry != NO_PAIR && !entry_fits(entry, n)))
         {
             return Err(
                 "kept pairs that do not fit the particle table or this scenario's neighbour search"
@@ -316,28 +349,7 @@ impl<Q: EventQueue> Engine<Q> {
             state.slots.iter().map(|s| s.shell_centre).collect()
         };
         self.face_mask = state.slots.iter().map(|s| s.face_mask).collect();
-        if self.uses_cells() {
-            // A state written after uniform kicks only keeps its pairs, so
-            // that the restarted run re-predicts as the original did.
-            let kept = state.kept_pairs.as_deref();
-            self.cell_state = state
-                .slots
-                .iter()
-                .enumerate()
-                .map(|(i, s)| CellState {
-                    candidate: kept.map_or(PairCandidate::UNPREDICTED, |k| {
-                        let (time, entry, partner_count) = k[i];
-                        PairCandidate {
-                            time,
-                            entry,
-                            partner_count,
-                        }
-                    }),
-                    cell: s.cell.map(|c| c as u32),
-                })
-                .collect();
-        }
-        self.kicks_uniform = state.kept_pairs.is_some();
+        self.import_kept_pairs(&state);
         self.is_soft = vec![false; n];
         self.turned_soft.clear();
         self.free_slots = state.free_slots;

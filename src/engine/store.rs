@@ -9,7 +9,7 @@ use glam::DVec3;
 use super::{Engine, NO_PARTNER, State};
 use crate::collision::Body;
 use crate::domain::Face;
-use crate::neighbours::NeighbourLists;
+use crate::neighbours::{self, NeighbourLists};
 use crate::particles::NewParticle;
 use crate::queue::EventQueue;
 
@@ -222,6 +222,9 @@ impl<Q: EventQueue> Engine<Q> {
         if self.uses_cells() {
             self.cell_state = vec![CellState::NEW; n];
         }
+        if self.keeps_list_pairs() {
+            self.list_pairs = vec![PairCandidate::UNPREDICTED; n];
+        }
         self.free_slots.clear();
         self.queue.clear();
         // The old lists are freed before the new are allocated, so that
@@ -387,11 +390,15 @@ impl EventState {
     };
 }
 
-/// Cells mode: a particle's earliest pair collision found at its last
-/// prediction, kept so that a cell crossing need scan only the newly
-/// adjacent cells (`Engine::predict_after_crossing`). `time` is on the
-/// engine clock (s), `INFINITY` for none; `entry` is packed as in
-/// [`Scheduled`], with the partner's event counter at prediction.
+/// A particle's earliest pair collision found at its last prediction, kept
+/// so that a cell crossing need scan only the newly adjacent cells
+/// (`Engine::predict_after_crossing`) and a uniform kick need not search
+/// at all (`Engine::prediction_after_uniform_kick`). `time` is on the
+/// engine clock (s); `entry` is packed as in [`Scheduled`], with the
+/// partner's event counter at prediction. With `entry` = [`NO_PAIR`] there
+/// is no pair before `time`: a lists-mode search stops at the particle's
+/// boundary event, which is then that horizon; a cells-mode search has
+/// none (`INFINITY`).
 #[derive(Clone, Copy, Debug)]
 pub(super) struct PairCandidate {
     pub(super) time: f64,
@@ -418,13 +425,25 @@ impl CellState {
     };
 }
 
+/// [`PairCandidate::entry`] when the search found no pair (never a packed
+/// entry: image codes stop at 26).
+pub(super) const NO_PAIR: u32 = neighbours::NONE;
+
 impl PairCandidate {
-    /// The search found no approaching pair.
-    pub(super) const NONE: PairCandidate = PairCandidate {
-        time: f64::INFINITY,
-        entry: 0,
-        partner_count: 0,
-    };
+    /// No pair before `time` (s, engine clock).
+    pub(super) const fn none_before(time: f64) -> PairCandidate {
+        PairCandidate {
+            time,
+            entry: NO_PAIR,
+            partner_count: 0,
+        }
+    }
+
+    /// Whether a pair was found (at `time`, with `entry`).
+    pub(super) fn has_pair(&self) -> bool {
+        self.entry != NO_PAIR && self.time.is_finite()
+    }
+
     /// No search yet (a new or renumbered slot): only a full prediction
     /// may follow.
     pub(super) const UNPREDICTED: PairCandidate = PairCandidate {

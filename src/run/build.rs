@@ -91,6 +91,8 @@ pub fn build_engine<Q: EventQueue>(s: &Scenario) -> anyhow::Result<Engine<Q>> {
         model: s.engine.model,
         soft: soft_config(s, &particles)?,
         prefetch: Prefetch::Auto,
+        // Gravity without gas: every kick is uniform.
+        keep_pairs: s.gas.is_none() && s.domain.gravity != DVec3::ZERO,
     };
     Engine::with_capacity_for_radius(
         engine_domain(s),
