@@ -90,7 +90,7 @@ impl<Q: EventQueue> Engine<Q> {
 
     /// Requests the first data particle i's next event reads: its event
     /// state, kinematics and wall faces, and its cell and kept pair (cells
-    /// mode) or its shell and neighbour list (lists mode).
+    /// mode) or its shell, neighbour list and any kept pair (lists mode).
     #[inline(always)]
     fn prefetch_particle(&self, i: usize) {
         prefetch(&self.event_state[i]);
@@ -102,6 +102,9 @@ impl<Q: EventQueue> Engine<Q> {
         } else {
             prefetch(&self.shell_centres[i]);
             self.lists.prefetch(i);
+            if let Some(kept) = self.list_pairs.get(i) {
+                prefetch(kept);
+            }
         }
     }
 
@@ -241,9 +244,8 @@ impl<Q: EventQueue> Engine<Q> {
     #[inline]
     pub(super) fn predict_all(&mut self) {
         let cells = self.config.neighbours == NeighbourSearch::Cells;
-        let keep_pairs = self.kicks_uniform
-            && (cells || !self.list_pairs.is_empty())
-            && self.config.model == ContactModel::Hard;
+        let keep_pairs =
+            self.kicks_uniform && self.keeps_pairs() && self.config.model == ContactModel::Hard;
         let swept = cells && !keep_pairs;
         let mut sweep = std::mem::take(&mut self.pair_sweep);
         if swept {
@@ -381,7 +383,7 @@ impl<Q: EventQueue> Engine<Q> {
     fn apply(&mut self, i: usize, p: &Prediction) {
         if self.config.neighbours == NeighbourSearch::Cells {
             self.cell_state[i].candidate = p.candidate;
-        } else if !self.list_pairs.is_empty() {
+        } else if self.keeps_list_pairs() {
             self.list_pairs[i] = p.candidate;
         }
         self.event_state[i].scheduled = p.event;
@@ -582,8 +584,8 @@ const PREDICTIONS_PER_TASK: usize = 512;
 /// (2.6 MB of predictions).
 const PREDICTION_CHUNK: usize = 1 << 16;
 
-/// A particle's next event: its delay (s), the event, and (cells mode) the
-/// best pair to keep for a partial prediction.
+/// A particle's next event: its delay (s), the event, and the best pair (or
+/// the search's horizon) to keep for a partial prediction.
 #[derive(Clone, Copy, Debug)]
 pub(super) struct Prediction {
     delay: f64,

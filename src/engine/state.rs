@@ -71,10 +71,11 @@ pub struct EngineState {
     pub counters: Counters,
     pub collapse_reports: Vec<CollapseReport>,
     pub soft_stats: SoftStats,
-    /// Cells mode, when only uniform kicks followed the last prediction:
-    /// each slot's kept pair (engine clock of contact (s), packed partner
-    /// entry, partner's event counter), from which the next prediction
-    /// starts ([`Engine::predict_all`]).
+    /// When only uniform kicks followed the last prediction (cells mode, or
+    /// lists mode with [`super::EngineConfig::keep_pairs`]): each slot's
+    /// kept pair (engine clock of contact (s), packed partner entry,
+    /// partner's event counter; entry `u32::MAX`: no pair before that
+    /// time), from which the next prediction starts ([`Engine::predict_all`]).
     pub kept_pairs: Option<Vec<(f64, u32, u32)>>,
 }
 
