@@ -14,12 +14,17 @@
 //! 3. Chord (simplified Newton) iterations on the cell mass residual
 //!    (Eq. 46–48): the Jacobian of the residual with respect to the cell
 //!    pressures is a symmetric 7-point matrix, solved by a
-//!    [`PressureSolver`]. It is assembled at the first iteration and kept
-//!    while each iteration cuts the residual at least
-//!    [`CHORD_CONTRACTION`]-fold: within a step it changes only through the
-//!    gas density, so the chord iterations converge nearly as fast as
-//!    Newton's and the direct solver usually factors once per step. Where
-//!    they do not (a start-up transient), the Jacobian is assembled afresh.
+//!    [`PressureSolver`]. It is assembled at the first iteration of a flow
+//!    step and kept, through the step's convective sub-steps, while each
+//!    iteration cuts the residual at least [`CHORD_CONTRACTION`]-fold:
+//!    within a flow step it changes only through the gas density and
+//!    fraction and the sub-step length, so the chord iterations converge
+//!    nearly as fast as Newton's and the direct solver usually factors once
+//!    per flow step. Where they do not (a start-up transient), the Jacobian
+//!    is assembled afresh. A flow step always starts afresh: the drag
+//!    coefficients change between steps (a Jacobian kept across steps cost
+//!    a third more iterations on the riser, results/benchmarks.md,
+//!    sixteenth session), and a restart file need not hold the matrix.
 //!
 //! Velocities are interstitial (m/s); the superficial velocity is `ε u`.
 //! Drag enters as the sink `α + β u` per unit volume at each face, which
@@ -735,7 +740,7 @@ impl GasPhase {
         let m = self.substeps_for(dt);
         self.substeps = m;
         if m == 1 {
-            return self.substep(dt);
+            return self.substep(dt, true);
         }
         let (start, end) = (self.gas_fraction_old.clone(), self.gas_fraction.clone());
         // Gas fraction after k of the m sub-steps (the levels themselves at
@@ -766,7 +771,7 @@ impl GasPhase {
             } else {
                 t0 + dt * k as f64 / m as f64
             };
-            let sub = self.substep(t - self.time)?;
+            let sub = self.substep(t - self.time, k == 1)?;
             self.time = t;
             stats.outer_iterations += sub.outer_iterations;
             stats.linear_iterations += sub.linear_iterations;
@@ -846,8 +851,10 @@ impl GasPhase {
         }
     }
 
-    /// One explicit-convection step of `dt` (s) within the Courant limit.
-    fn substep(&mut self, dt: f64) -> Result<StepStats, GasError> {
+    /// One explicit-convection step of `dt` (s) within the Courant limit;
+    /// `first`: the first of its flow step, which assembles the Jacobian
+    /// afresh (later sub-steps start from the one before).
+    fn substep(&mut self, dt: f64, first: bool) -> Result<StepStats, GasError> {
         self.density_old.clone_from(&self.density);
         let t_new = self.time + dt;
         self.apply_jets(t_new);
@@ -871,8 +878,11 @@ impl GasPhase {
         loop {
             self.momentum_and_residual(dt);
             let worst = self.worst_residual();
-            let refresh_jacobian =
-                stats.outer_iterations == 0 || worst.0 * CHORD_CONTRACTION > previous;
+            let refresh_jacobian = if stats.outer_iterations == 0 {
+                first
+            } else {
+                worst.0 * CHORD_CONTRACTION > previous
+            };
             previous = worst.0;
             stats.mass_residual = worst.0;
             if !worst.0.is_finite() {
