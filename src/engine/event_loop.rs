@@ -90,7 +90,7 @@ impl<Q: EventQueue> Engine<Q> {
 
     /// Requests the first data particle i's next event reads: its event
     /// state, kinematics and wall faces, and its cell and kept pair (cells
-    /// mode) or its shell, neighbour list and any kept pair (lists mode).
+    /// mode) or its shell and neighbour list (lists mode).
     #[inline(always)]
     fn prefetch_particle(&self, i: usize) {
         prefetch(&self.event_state[i]);
@@ -102,9 +102,6 @@ impl<Q: EventQueue> Engine<Q> {
         } else {
             prefetch(&self.shell_centres[i]);
             self.lists.prefetch(i);
-            if let Some(kept) = self.list_pairs.get(i) {
-                prefetch(kept);
-            }
         }
     }
 
@@ -383,7 +380,7 @@ impl<Q: EventQueue> Engine<Q> {
     fn apply(&mut self, i: usize, p: &Prediction) {
         if self.config.neighbours == NeighbourSearch::Cells {
             self.cell_state[i].candidate = p.candidate;
-        } else if self.keeps_list_pairs() {
+        } else if !self.list_pairs.is_empty() {
             self.list_pairs[i] = p.candidate;
         }
         self.event_state[i].scheduled = p.event;
@@ -399,8 +396,9 @@ impl<Q: EventQueue> Engine<Q> {
     /// itself). Otherwise, a full prediction.
     #[inline]
     pub(super) fn predict_after_crossing(&mut self, i: usize, axis: usize, up: bool) {
+        // A cells-mode search has no horizon: a finite time is a pair.
         let kept = self.cell_state[i].candidate;
-        if kept.has_pair()
+        if kept.time.is_finite()
             && self.event_state[neighbours::unpack(kept.entry).0 as usize].counter
                 != kept.partner_count
         {
@@ -411,7 +409,7 @@ impl<Q: EventQueue> Engine<Q> {
         let search = PairSearch::new(self, i, ki, f64::INFINITY);
         let mut found = self.search_cells(search, CellScan::NewLayer { axis, up });
         let now = self.now;
-        if kept.has_pair() && now + found.best >= kept.time {
+        if kept.time.is_finite() && now + found.best >= kept.time {
             found.best = kept.time - now;
             found.best_entry = Some(kept.entry);
         }
