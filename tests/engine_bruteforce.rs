@@ -271,6 +271,7 @@ fn run_kicked<Q: EventQueue>(
     let shifts = image_shifts(case);
     let dt_flow = 0.05;
     let mut step_left = dt_flow;
+    let mut steps = 0u64;
     let mut sequence = Vec::with_capacity(collisions);
     let mut ties = 0;
     while sequence.len() < collisions {
@@ -289,8 +290,16 @@ fn run_kicked<Q: EventQueue>(
                     );
                 }
                 engine.end_flow_step();
+                steps += 1;
                 match kicks {
-                    Kicks::Uniform => engine.kick_all(case.gravity * dt_flow),
+                    Kicks::Uniform => {
+                        // Renumbering now and then: the kept pairs start
+                        // afresh, as after an edpm run's renumbering.
+                        if steps % 5 == 0 {
+                            engine.reorder_by_cell();
+                        }
+                        engine.kick_all(case.gravity * dt_flow)
+                    }
                     Kicks::PerParticle => {
                         let dv: Vec<DVec3> = (0..engine.slots())
                             .map(|_| {
