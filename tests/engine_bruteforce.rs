@@ -295,7 +295,7 @@ fn run_kicked<Q: EventQueue>(
                     Kicks::Uniform => {
                         // Renumbering now and then: the kept pairs start
                         // afresh, as after an edpm run's renumbering.
-                        if steps % 5 == 0 {
+                        if steps.is_multiple_of(5) {
                             engine.reorder_by_cell();
                         }
                         engine.kick_all(case.gravity * dt_flow)
