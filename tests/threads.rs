@@ -175,3 +175,20 @@ fn cells_run_is_bit_identical_on_one_and_two_threads() {
         &["--set", "engine.neighbours=cells"],
     );
 }
+
+/// A gas-free box under gravity in lists mode: after each uniform gravity
+/// kick every particle is re-predicted in parallel from its kept pair (2000
+/// particles, so that the predictions split into several tasks).
+#[test]
+fn lists_run_with_kept_pairs_is_bit_identical_on_one_and_two_threads() {
+    assert_thread_independent(
+        "scenarios/box-walls.toml",
+        "0.05",
+        &[
+            "--set",
+            "engine.neighbours=\"lists\"",
+            "--set",
+            "particles.0.count=2000",
+        ],
+    );
+}
