@@ -52,6 +52,10 @@ pub struct NeighbourLists {
     stride: usize,
     len: Vec<u32>,
     entries: Vec<u32>,
+    /// Per slot: the pass of [`NeighbourLists::retain_marked`] that last
+    /// kept it as a partner.
+    mark: Vec<u32>,
+    pass: u32,
 }
 
 impl NeighbourLists {
@@ -61,12 +65,15 @@ impl NeighbourLists {
             stride,
             len: vec![0; slots],
             entries: vec![0; slots * stride],
+            mark: vec![0; slots],
+            pass: 0,
         }
     }
 
     /// Makes room for `slots` particles.
     pub fn resize(&mut self, slots: usize) {
         self.len.resize(slots, 0);
+        self.mark.resize(slots, 0);
         self.entries.resize(slots * self.stride, 0);
     }
 
@@ -113,6 +120,38 @@ impl NeighbourLists {
         self.len[i] = 0;
     }
 
+    /// Keeps the entries of i's list for which `keep(entry)` holds, drops
+    /// the others from both lists (i's and the partner's), and marks each
+    /// kept partner ([`NeighbourLists::marked`]) until the next call.
+    pub fn retain_marked(&mut self, i: usize, mut keep: impl FnMut(u32) -> bool) {
+        self.pass = self.pass.wrapping_add(1);
+        if self.pass == 0 {
+            self.mark.fill(0);
+            self.pass = 1;
+        }
+        let start = i * self.stride;
+        let mut k = 0;
+        while k < self.len[i] as usize {
+            let entry = self.entries[start + k];
+            let j = unpack(entry).0;
+            if keep(entry) {
+                self.mark[j as usize] = self.pass;
+                k += 1;
+            } else {
+                self.remove_index(j as usize, i as u32);
+                let last = start + self.len[i] as usize - 1;
+                self.entries[start + k] = self.entries[last];
+                self.len[i] -= 1;
+            }
+        }
+    }
+
+    /// Whether the last [`NeighbourLists::retain_marked`] kept slot `j`.
+    #[inline]
+    pub fn marked(&self, j: usize) -> bool {
+        self.mark[j] == self.pass
+    }
+
     /// Largest list length, for memory and tuning reports.
     pub fn stride(&self) -> usize {
         self.stride
@@ -120,7 +159,8 @@ impl NeighbourLists {
 
     /// Heap memory of the lists (bytes).
     pub fn heap_bytes(&self) -> usize {
-        (self.len.capacity() + self.entries.capacity()) * std::mem::size_of::<u32>()
+        (self.len.capacity() + self.entries.capacity() + self.mark.capacity())
+            * std::mem::size_of::<u32>()
     }
 
     fn grow(&mut self) {

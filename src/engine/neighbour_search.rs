@@ -147,22 +147,34 @@ impl<Q: EventQueue> Engine<Q> {
     pub(super) fn rebuild_list(&mut self, i: usize) {
         let pos = self.kin[i].position_at(self.now);
         let centre = self.domain.wrap(pos);
-        if centre != pos {
+        let wrapped = centre != pos;
+        if wrapped {
             self.sync(i);
             self.set_wrapped_position(i, centre);
         }
         let batched = self.prefetches();
-        // Old neighbours' lists are requested together, then i leaves each.
+        // Old neighbours' lists are requested together: i may leave them.
         if batched {
             for &entry in self.lists.list(i) {
                 self.lists.prefetch(neighbours::unpack(entry).0 as usize);
             }
         }
-        for k in 0..self.lists.list(i).len() {
-            let (j, _) = neighbours::unpack(self.lists.list(i)[k]);
-            self.lists.remove_index(j as usize, i as u32);
-        }
-        self.lists.clear(i);
+        // Partners whose shells still overlap the new one stay linked (and
+        // marked, so that the scan below skips them); the rest are
+        // unlinked. After a wrap every image code changes: all are.
+        let reach = self.kin[i].radius + self.config.skin;
+        let (centres, kin, shifts, skin) = (
+            &self.shell_centres,
+            &self.kin,
+            &self.image_shift,
+            self.config.skin,
+        );
+        self.lists.retain_marked(i, |entry| {
+            let (j, code) = neighbours::unpack(entry);
+            let d = (centres[j as usize] - centre) + shifts[code as usize];
+            let both = reach + rounded_reach(kin[j as usize].radius + skin);
+            !wrapped && d.length_squared() < both * both
+        });
         self.shell_centres[i] = centre;
         self.cells.place(i, centre);
         let ri = self.kin[i].radius + self.config.skin;
@@ -251,6 +263,9 @@ impl Gather for ShellLinker<'_> {
     #[inline(always)]
     fn take(&mut self, (j, image): Self::Item) {
         let (i, j) = (self.i, j as usize);
+        if self.lists.marked(j) {
+            return;
+        }
         let d = self.centres[j] - self.centre;
         let code = match image {
             Some(code) => code,
