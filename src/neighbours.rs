@@ -813,7 +813,8 @@ mod tests {
         assert_eq!(unpack(l.list(2)[0]), (7, 5));
         // Grown by steps of 4 to the longest list, without spare capacity.
         assert_eq!(l.stride(), 12);
-        assert_eq!(l.heap_bytes(), (3 + 3 * 12) * 4);
+        // Lengths, rebuild marks and entries.
+        assert_eq!(l.heap_bytes(), (3 + 3 + 3 * 12) * 4);
         assert_eq!(
             (0..10).map(|j| unpack(l.list(1)[j]).0).collect::<Vec<_>>(),
             (0..10).collect::<Vec<_>>()
@@ -821,6 +822,36 @@ mod tests {
         l.remove_index(1, 3);
         assert_eq!(l.list(1).len(), 9);
         assert!(l.list(1).iter().all(|&e| unpack(e).0 != 3));
+    }
+
+    /// A rebuild's first pass: kept partners stay linked both ways and are
+    /// marked; dropped ones leave both lists; a second pass forgets the
+    /// marks of the first.
+    #[test]
+    fn retain_marked_unlinks_both_ways_and_marks_the_kept() {
+        let mut l = NeighbourLists::new(5, 4);
+        for j in 1..5 {
+            l.push(0, pack(j, 13));
+            l.push(j as usize, pack(0, 13));
+        }
+        l.push(2, pack(3, 13));
+        l.retain_marked(0, |e| unpack(e).0 % 2 == 0);
+        let partners = |l: &NeighbourLists, i: usize| {
+            let mut p: Vec<u32> = l.list(i).iter().map(|&e| unpack(e).0).collect();
+            p.sort_unstable();
+            p
+        };
+        assert_eq!(partners(&l, 0), [2, 4]);
+        assert_eq!(partners(&l, 1), Vec::<u32>::new());
+        assert_eq!(partners(&l, 2), [0, 3]);
+        assert_eq!(partners(&l, 3), Vec::<u32>::new());
+        assert_eq!(partners(&l, 4), [0]);
+        assert!(l.marked(2) && l.marked(4));
+        assert!(!l.marked(1) && !l.marked(3) && !l.marked(0));
+        l.retain_marked(2, |_| false);
+        assert!(!l.marked(4), "a new pass starts unmarked");
+        assert_eq!(partners(&l, 0), [4]);
+        assert_eq!(partners(&l, 3), Vec::<u32>::new());
     }
 
     #[test]
