@@ -835,7 +835,7 @@ mod tests {
             l.push(j as usize, pack(0, 13));
         }
         l.push(2, pack(3, 13));
-        l.retain_marked(0, |e| unpack(e).0 % 2 == 0);
+        l.retain_marked(0, |e| unpack(e).0.is_multiple_of(2));
         let partners = |l: &NeighbourLists, i: usize| {
             let mut p: Vec<u32> = l.list(i).iter().map(|&e| unpack(e).0).collect();
             p.sort_unstable();
