@@ -293,7 +293,8 @@ pub struct Engine<Q: EventQueue> {
     needs_prediction: bool,
     /// Whether every velocity change since the last [`Engine::predict_all`]
     /// outside events was the same for all particles ([`Engine::kick_all`]):
-    /// then relative motions, and so the kept pairs, still hold. True at the start, where every slot is unpredicted and gets a
+    /// then relative motions, and so the kept pairs, still hold. True at
+    /// the start, where every slot is unpredicted and gets a
     /// particle-by-particle search: runs without per-particle kicks
     /// (`edpm bench`) never hold pair-sweep buffers.
     kicks_uniform: bool,

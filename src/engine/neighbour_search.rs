@@ -141,8 +141,9 @@ impl<Q: EventQueue> Engine<Q> {
     }
 
     /// Rebuilds particle i's shell around its current position: wraps it
-    /// into the box, drops it from its old neighbours' lists and links it
-    /// with every particle whose shell overlaps the new one.
+    /// into the box, keeps the partners whose shells still overlap the new
+    /// one, unlinks the rest, and links it with every other particle whose
+    /// shell overlaps the new one.
     #[inline]
     pub(super) fn rebuild_list(&mut self, i: usize) {
         let pos = self.kin[i].position_at(self.now);
@@ -172,16 +173,14 @@ impl<Q: EventQueue> Engine<Q> {
         self.lists.retain_marked(i, |entry| {
             let (j, code) = neighbours::unpack(entry);
             let d = (centres[j as usize] - centre) + shifts[code as usize];
-            let both = reach + rounded_reach(kin[j as usize].radius + skin);
-            !wrapped && d.length_squared() < both * both
+            !wrapped && shells_overlap(d.length_squared(), reach, kin[j as usize].radius, skin)
         });
         self.shell_centres[i] = centre;
         self.cells.place(i, centre);
-        let ri = self.kin[i].radius + self.config.skin;
         let mut linker = ShellLinker {
             i,
             centre,
-            reach: ri,
+            reach,
             skin: self.config.skin,
             max_partner_reach: rounded_reach(self.r_max + self.config.skin),
             periodic: self.periodic,
@@ -211,12 +210,12 @@ impl<Q: EventQueue> Engine<Q> {
             if self.domain.axes[axis] != AxisBoundary::Walls {
                 continue;
             }
-            if centre[axis] - ri <= self.domain.lo[axis] {
+            if centre[axis] - reach <= self.domain.lo[axis] {
                 mask |= 1 << (2 * axis);
             }
             let upper = (2 * axis + 1) as Face;
             let reach_hi = if self.domain.has_wall(upper) {
-                ri
+                reach
             } else {
                 self.config.skin
             };
@@ -226,6 +225,17 @@ impl<Q: EventQueue> Engine<Q> {
         }
         self.face_mask[i] = mask;
     }
+}
+
+/// Whether a shell of radius `reach` (m, R + δ) and the shell of a partner
+/// of radius `partner_radius` (m) overlap, their centres `distance_squared`
+/// (m²) apart: the one test that links a pair and keeps it linked at a
+/// rebuild, with the partner's shell radius rounded as stored
+/// ([`rounded_reach`]).
+#[inline(always)]
+fn shells_overlap(distance_squared: f64, reach: f64, partner_radius: f64, skin: f64) -> bool {
+    let both = reach + rounded_reach(partner_radius + skin);
+    distance_squared < both * both
 }
 
 /// Shell candidates a batched [`ShellLinker`] requests before it tests
@@ -276,9 +286,9 @@ impl Gather for ShellLinker<'_> {
         let distance_squared = d.length_squared();
         // The partner's radius only for shells near enough to overlap at
         // the largest radius (its kinematics are another cache line).
-        let within = |reach: f64| distance_squared < reach * reach;
-        if within(self.reach + self.max_partner_reach)
-            && within(self.reach + rounded_reach(self.kin[j].radius + self.skin))
+        let reach_sum = self.reach + self.max_partner_reach;
+        if distance_squared < reach_sum * reach_sum
+            && shells_overlap(distance_squared, self.reach, self.kin[j].radius, self.skin)
         {
             // Entry in i's list: j appears shifted by `code` relative to i.
             self.lists.push(i, neighbours::pack(j as u32, code));
