@@ -533,10 +533,18 @@ impl<Q: EventQueue> Engine<Q> {
         }
         for axis in 0..3 {
             let (lo, hi) = (self.domain.lo[axis], self.domain.hi[axis]);
+            // The outlet takes a particle when its centre passes the face,
+            // so a sphere may reach past it (a run's final state holds such
+            // particles); a wall must contain the whole sphere.
+            let outlet = matches!(self.domain.outlet, Some(o) if o.axis == axis);
             let inside = match self.domain.axes[axis] {
                 AxisBoundary::Walls => {
                     p.pos[axis] - p.radius >= lo - 1e-12 * p.radius
-                        && p.pos[axis] + p.radius <= hi + 1e-12 * p.radius
+                        && if outlet {
+                            p.pos[axis] < hi
+                        } else {
+                            p.pos[axis] + p.radius <= hi + 1e-12 * p.radius
+                        }
                 }
                 AxisBoundary::Periodic => p.pos[axis] >= lo && p.pos[axis] < hi,
                 AxisBoundary::Frozen => p.vel[axis] == 0.0 && p.omega.x == 0.0 && p.omega.y == 0.0,
