@@ -837,3 +837,68 @@ fn planar_riser_fed_3d_equivalent_carries_the_3d_solids_fraction() {
         err(&three_d)
     );
 }
+
+#[test]
+fn auto_search_treats_a_riser_as_dilute_and_a_bubbling_bed_as_a_bed() {
+    use edpm::engine::NeighbourSearch;
+    // riser-*.toml: 500 um sand of 2660 kg/m^3 in air, terminal velocity
+    // 3.86 m/s (the scenario header), gas at 5 m/s: carried. Inflows of 3.8
+    // and 3.9 m/s straddle the terminal velocity (Schiller-Naumann, 1.5 %
+    // either side), so the test pins the switch to it.
+    let (d, rho) = (500e-6, 2660.0);
+    let riser = shipped_scenario("riser-nonideal.toml", &[]);
+    assert!(!riser.gravity_gathers_particles(d, rho));
+    let slow = shipped_scenario("riser-nonideal.toml", &["gas.faces.y_lo={inflow=3.8}"]);
+    assert!(slow.gravity_gathers_particles(d, rho));
+    let fast = shipped_scenario("riser-nonideal.toml", &["gas.faces.y_lo={inflow=3.9}"]);
+    assert!(!fast.gravity_gathers_particles(d, rho));
+    // The jet bed's background inflow, 1.25 m/s, is near u_mf: a bed.
+    let jet = shipped_scenario("bubbling-bed-jet.toml", &[]);
+    let jet_d = jet.max_diameter();
+    let jet_rho = jet.materials[jet.populations[0].material as usize]
+        .density
+        .unwrap();
+    assert!(jet.gravity_gathers_particles(jet_d, jet_rho));
+    // Gravity without gas gathers; no gravity does not.
+    let box_walls = shipped_scenario("box-walls.toml", &[]);
+    assert!(box_walls.gravity_gathers_particles(1e-3, 2500.0));
+    let hcs = shipped_scenario("hcs-3d.toml", &[]);
+    assert!(!hcs.gravity_gathers_particles(1e-3, 2500.0));
+
+    // A riser continued from a full state (solids fraction 0.035 here,
+    // above the bed rule's 0.02) searches with cells, 2.6x faster there
+    // than lists (results/benchmarks.md, seventeenth session).
+    let dir = fresh_dir("riser-auto");
+    let r = 0.5 * d;
+    let particles: Vec<NewParticle> = (0..21_000)
+        .map(|k| NewParticle {
+            pos: DVec3::new(
+                0.002 + 0.0015 * (k % 50) as f64,
+                0.002 + 0.00237 * (k / 50) as f64,
+                0.00025,
+            ),
+            vel: DVec3::new(0.0, 1.0, 0.0),
+            omega: DVec3::ZERO,
+            radius: r,
+            material: 0,
+        })
+        .collect();
+    let solids = particles.len() as f64 * std::f64::consts::PI / 6.0 * d.powi(3);
+    let fraction = solids / (0.08 * 1.0 * 0.0005);
+    assert!(fraction > 0.02, "{fraction}");
+    let path = dir.join("full.bin");
+    edpm::io::output::Checkpoint {
+        run_id: 0,
+        version: edpm::io::output::CHECKPOINT_VERSION,
+        time: 0.0,
+        particles,
+    }
+    .write(&path)
+    .unwrap();
+    let full = shipped_scenario(
+        "riser-nonideal.toml",
+        &[&format!("initial.checkpoint=\"{}\"", path.display())],
+    );
+    assert_eq!(engine(&full).neighbour_search(), NeighbourSearch::Cells);
+    std::fs::remove_dir_all(&dir).unwrap();
+}

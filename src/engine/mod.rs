@@ -168,19 +168,15 @@ pub const CELLS_BELOW_FRACTION: f64 = 0.325;
 pub const PREFETCH_MIN_SLOTS: usize = 1 << 15;
 
 /// The `auto` neighbour search, shared by `edpm run`, `edpm bench` and the
-/// resolved scenario:
-/// cells when the solids fraction is below [`CELLS_BELOW_FRACTION`] without
-/// gravity, or below 0.02 with gravity (which gathers dilute particles into
-/// dense beds, where lists are 2x faster: measured on
-/// scenarios/box-walls.toml), and every periodic axis spans at least three
-/// cells of one largest diameter (`cells_fit`); lists otherwise. See
-/// results/benchmarks.md.
-pub fn auto_neighbour_search(
-    solids_fraction: f64,
-    gravity: bool,
-    cells_fit: bool,
-) -> NeighbourSearch {
-    let threshold = if gravity { 0.02 } else { CELLS_BELOW_FRACTION };
+/// resolved scenario: cells when the solids fraction is below
+/// [`CELLS_BELOW_FRACTION`], or below 0.02 where gravity gathers the
+/// particles into a bed (`bed`: lists are 2x faster in the dense bed that
+/// forms, measured on scenarios/box-walls.toml), and every periodic axis
+/// spans at least three cells of one largest diameter (`cells_fit`); lists
+/// otherwise. A riser's gas carries its particles (`bed` false): cells
+/// were 2.6x faster there (results/benchmarks.md, seventeenth session).
+pub fn auto_neighbour_search(solids_fraction: f64, bed: bool, cells_fit: bool) -> NeighbourSearch {
+    let threshold = if bed { 0.02 } else { CELLS_BELOW_FRACTION };
     if solids_fraction < threshold && cells_fit {
         NeighbourSearch::Cells
     } else {

@@ -140,7 +140,9 @@ pub fn soft_config(s: &Scenario, particles: &[NewParticle]) -> anyhow::Result<So
 }
 
 /// The neighbour search for a scenario: as chosen, or for `auto` the rule
-/// of [`auto_neighbour_search`] applied to the initial solids fraction.
+/// of [`auto_neighbour_search`] applied to the initial solids fraction
+/// (the bed rule where gravity gathers the particles,
+/// [`Scenario::gravity_gathers_particles`]).
 fn neighbour_search(s: &Scenario, particles: &[NewParticle], r_max: f64) -> NeighbourSearch {
     match s.engine.neighbours {
         NeighbourChoice::Lists => NeighbourSearch::Lists,
@@ -155,9 +157,13 @@ fn neighbour_search(s: &Scenario, particles: &[NewParticle], r_max: f64) -> Neig
             let size = s.domain.extent();
             let cells_fit =
                 (0..3).all(|a| !s.boundaries.is_periodic(a) || size[a] >= 3.0 * 2.0 * r_max);
+            let rho_max = particles
+                .iter()
+                .filter_map(|p| s.materials.get(p.material as usize)?.density)
+                .fold(0.0, f64::max);
             auto_neighbour_search(
                 solids / s.domain.volume(),
-                s.domain.gravity != DVec3::ZERO,
+                s.gravity_gathers_particles(2.0 * r_max, rho_max),
                 cells_fit,
             )
         }

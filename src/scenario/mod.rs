@@ -345,8 +345,9 @@ pub struct TimeSettings {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum NeighbourChoice {
-    /// Cells when the initial solids fraction is below 0.325 (0.02 with
-    /// gravity) and every periodic axis holds at least 3 cells, else lists
+    /// Cells when the initial solids fraction is below 0.325 (0.02 where
+    /// gravity gathers the particles into a bed) and every periodic axis
+    /// holds at least 3 cells, else lists
     /// ([`crate::engine::auto_neighbour_search`]).
     Auto,
     Lists,
@@ -591,6 +592,33 @@ impl Scenario {
             .iter()
             .map(|p| p.diameter.max())
             .fold(0.0, f64::max)
+    }
+
+    /// Whether gravity gathers the particles into a bed, the case where
+    /// `neighbours = "auto"` picks lists above a solids fraction of 0.02
+    /// ([`crate::engine::auto_neighbour_search`]): gravity, and no gas
+    /// inflow against it faster than the terminal velocity (Schiller–Naumann,
+    /// seed 001 Eq. 4) of the heaviest particle, of diameter `d_max` (m) and
+    /// density `rho_max` (kg/m³). A riser's gas carries its particles and
+    /// keeps them dilute.
+    pub fn gravity_gathers_particles(&self, d_max: f64, rho_max: f64) -> bool {
+        let g = self.domain.gravity;
+        if g == DVec3::ZERO {
+            return false;
+        }
+        let Some(gas) = &self.gas else {
+            return true;
+        };
+        // The superficial inflow through the face gravity points at.
+        let axis = g.abs().max_position();
+        let face = usize::from(g[axis] > 0.0);
+        let crate::gas::GasFace::Inflow { velocity } = gas.faces[axis][face] else {
+            return true;
+        };
+        let rho_g = gas.model.density(gas.pressure);
+        let terminal =
+            crate::gas::drag::terminal_velocity(d_max, rho_max, rho_g, gas.viscosity, g.length());
+        velocity <= terminal
     }
 
     /// Number of particles the populations create.

@@ -477,14 +477,23 @@ fn expected_neighbours(s: &Scenario) -> String {
     let d_max = s.max_diameter();
     let extent = s.domain.extent();
     let cells_fit = (0..3).all(|a| !s.boundaries.is_periodic(a) || extent[a] >= 3.0 * d_max);
-    let gravity = s.domain.gravity != DVec3::ZERO;
-    let choice = match crate::engine::auto_neighbour_search(fraction, gravity, cells_fit) {
+    let rho_max = s
+        .populations
+        .iter()
+        .filter_map(|p| s.materials.get(p.material as usize)?.density)
+        .fold(0.0, f64::max);
+    let gathers = s.gravity_gathers_particles(d_max, rho_max);
+    let choice = match crate::engine::auto_neighbour_search(fraction, gathers, cells_fit) {
         NeighbourSearch::Cells => "cells",
         NeighbourSearch::Lists => "lists",
     };
     format!(
         "auto: expected {choice} (initial solids fraction {fraction:.3e} from the populations' mean volumes; threshold {}; the run decides from the particles it places)",
-        if gravity { "0.02 with gravity" } else { "0.2" }
+        if gathers {
+            "0.02 where gravity gathers the particles into a bed".to_string()
+        } else {
+            crate::engine::CELLS_BELOW_FRACTION.to_string()
+        }
     )
 }
 
