@@ -181,6 +181,17 @@ impl<Q: EventQueue> Engine<Q> {
         }
     }
 
+    /// Re-predicts every particle now if kicks or a flow-step end left them
+    /// unpredicted, as the next [`Engine::advance`] would do first (hard
+    /// spheres only; the soft and hybrid models predict as they step). The
+    /// work is spread over the calling thread's rayon pool and the result is
+    /// the same bits as when [`Engine::advance`] does it.
+    pub fn predict_now(&mut self) {
+        if self.config.model == ContactModel::Hard && self.stall.is_none() {
+            self.ensure_predicted();
+        }
+    }
+
     /// Wall-clock time this process has spent re-predicting every particle
     /// (after kicks and flow-step ends), s.
     pub fn prediction_wall_seconds(&self) -> f64 {
