@@ -178,7 +178,7 @@ impl<Q: EventQueue> Engine<Q> {
     /// particle and no wall and fits the neighbour grid; returns whether it
     /// was inserted.
     pub fn try_insert(&mut self, p: NewParticle) -> bool {
-        if self.check_particle(usize::MAX, &p).is_err() {
+        if self.check_particle(usize::MAX, &p, false).is_err() {
             return false;
         }
         let mut overlaps = false;

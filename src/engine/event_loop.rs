@@ -182,14 +182,19 @@ impl<Q: EventQueue> Engine<Q> {
     }
 
     /// Re-predicts every particle now if kicks or a flow-step end left them
-    /// unpredicted, as the next [`Engine::advance`] would do first (hard
-    /// spheres only; the soft and hybrid models predict as they step). The
-    /// work is spread over the calling thread's rayon pool and the result is
+    /// unpredicted, as the next [`Engine::advance`] would do first, and
+    /// returns whether it did. Hard spheres only: the soft model has no
+    /// events, and the hybrid predicts once it has set its soft regions
+    /// aside. The work is spread over the calling thread's rayon pool, with
     /// the same bits as when [`Engine::advance`] does it.
-    pub fn predict_now(&mut self) {
-        if self.config.model == ContactModel::Hard && self.stall.is_none() {
+    pub fn predict_now(&mut self) -> bool {
+        let due = self.config.model == ContactModel::Hard
+            && self.stall.is_none()
+            && self.needs_prediction;
+        if due {
             self.ensure_predicted();
         }
+        due
     }
 
     /// Wall-clock time this process has spent re-predicting every particle

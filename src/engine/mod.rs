@@ -474,7 +474,7 @@ impl<Q: EventQueue> Engine<Q> {
             }
         }
         for (index, p) in particles.enumerate() {
-            engine.check_particle(index, &p)?;
+            engine.check_particle(index, &p, true)?;
             let slot = engine.allocate_slot(&p);
             engine.enter_grid(slot);
         }
@@ -509,7 +509,16 @@ impl<Q: EventQueue> Engine<Q> {
         Ok(())
     }
 
-    fn check_particle(&self, index: usize, p: &NewParticle) -> Result<(), EngineError> {
+    /// Checks particle `p` (number `index` in messages) against the domain
+    /// and the materials. `reach_past_outlet`: a given state may hold
+    /// spheres that reach past the outlet face with their centre inside (as
+    /// a run's final state does); a particle fed in must fit entirely.
+    fn check_particle(
+        &self,
+        index: usize,
+        p: &NewParticle,
+        reach_past_outlet: bool,
+    ) -> Result<(), EngineError> {
         let bad = |what: String| Err(EngineError::BadParticle { index, what });
         if !(p.radius > 0.0 && p.radius.is_finite()) {
             return bad(format!("radius must be > 0 m, got {}", p.radius));
@@ -532,12 +541,13 @@ impl<Q: EventQueue> Engine<Q> {
             // The outlet takes a particle when its centre passes the face,
             // so a sphere may reach past it (a run's final state holds such
             // particles); a wall must contain the whole sphere.
-            let outlet = matches!(self.domain.outlet, Some(o) if o.axis == axis);
+            let outlet =
+                reach_past_outlet && matches!(self.domain.outlet, Some(o) if o.axis == axis);
             let inside = match self.domain.axes[axis] {
                 AxisBoundary::Walls => {
                     p.pos[axis] - p.radius >= lo - 1e-12 * p.radius
                         && if outlet {
-                            p.pos[axis] < hi
+                            p.pos[axis] <= hi + 1e-12 * p.radius
                         } else {
                             p.pos[axis] + p.radius <= hi + 1e-12 * p.radius
                         }

@@ -361,13 +361,15 @@ struct WallClock {
 }
 
 impl WallClock {
-    /// Overlapped splitting on two or more threads: whether the
+    /// Overlapped splitting on `threads` (≥ 2) threads: whether the
     /// re-prediction after the kicks should run before the flight, on every
     /// thread. With the last step's flight rest `R`, gas step `G` and
-    /// re-prediction `P`, the join then takes about `P/2 + max(R, G)`
-    /// instead of `max(R + P, G)`: shorter when `R + P/2 > G`.
-    fn predicts_before_flight(&self) -> bool {
-        self.last_flight_rest + 0.5 * self.last_prediction > self.last_gas
+    /// re-prediction `P` (one thread), the join then takes about
+    /// `P/n + max(R, G)` instead of `max(R + P, G)`: shorter when
+    /// `R + P (1 − 1/n) > G`.
+    fn predicts_before_flight(&self, threads: usize) -> bool {
+        let share = 1.0 - 1.0 / threads as f64;
+        self.last_flight_rest + share * self.last_prediction > self.last_gas
     }
 }
 
@@ -459,11 +461,11 @@ impl<Q: EventQueue> FlowLoop<'_, Q> {
         // The re-prediction is data-parallel; the rest of the flight is not.
         // Results are the same bits wherever it runs.
         let predicted_before = engine.prediction_wall_seconds();
-        let threads = rayon::current_num_threads() > 1;
-        let (before, ()) = if threads && self.clock.predicts_before_flight() {
+        let threads = rayon::current_num_threads();
+        let (before, ran) = if threads > 1 && self.clock.predicts_before_flight(threads) {
             timed(|| engine.predict_now())
         } else {
-            (0.0, ())
+            (0.0, false)
         };
         let start = Instant::now();
         let ((flight, ()), (gas, solved)) = rayon::join(
@@ -477,9 +479,10 @@ impl<Q: EventQueue> FlowLoop<'_, Q> {
         clock.gas += gas;
         clock.overlapped += (flight + gas - both).max(0.0);
         // Timed on every thread when it ran before the flight: its time on
-        // one thread is about that times the threads.
-        clock.last_prediction = if before > 0.0 {
-            before * rayon::current_num_threads() as f64
+        // one thread is about that times the threads (an estimate; inside
+        // the join the gas task may take a share, so both are rough).
+        clock.last_prediction = if ran {
+            before * threads as f64
         } else {
             prediction
         };

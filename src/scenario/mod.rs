@@ -596,11 +596,13 @@ impl Scenario {
 
     /// Whether gravity gathers the particles into a bed, the case where
     /// `neighbours = "auto"` picks lists above a solids fraction of 0.02
-    /// ([`crate::engine::auto_neighbour_search`]): gravity, and no gas
-    /// inflow against it faster than the terminal velocity (Schiller–Naumann,
-    /// seed 001 Eq. 4) of the heaviest particle, of diameter `d_max` (m) and
-    /// density `rho_max` (kg/m³). A riser's gas carries its particles and
-    /// keeps them dilute.
+    /// ([`crate::engine::auto_neighbour_search`]): gravity, and no uniform
+    /// gas inflow, through the face gravity points at, faster than the
+    /// terminal velocity (Schiller–Naumann, seed 001 Eq. 4) of a particle of
+    /// the largest diameter `d_max` (m) and the largest density `rho_max`
+    /// (kg/m³), an upper bound on every particle's. Jets do not count: a
+    /// jet bed is a bed. A riser's gas carries its particles and keeps
+    /// them dilute.
     pub fn gravity_gathers_particles(&self, d_max: f64, rho_max: f64) -> bool {
         let g = self.domain.gravity;
         if g == DVec3::ZERO {
