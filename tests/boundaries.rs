@@ -850,25 +850,21 @@ fn auto_search_treats_a_riser_as_dilute_and_a_bubbling_bed_as_a_bed() {
     // 3.853 m/s (Schiller-Naumann; 3.86 in the scenario header), gas at
     // 5 m/s: carried. Inflows of 3.8 and 3.9 m/s lie 1.4 % and 1.2 % either
     // side of it, so the test pins the switch to it.
-    let (d, rho) = (500e-6, 2660.0);
+    let d = 500e-6;
     let riser = shipped_scenario("riser-nonideal.toml", &[]);
-    assert!(!riser.gravity_gathers_particles(d, rho));
+    assert!(!riser.gravity_gathers_particles(d));
     let slow = shipped_scenario("riser-nonideal.toml", &["gas.faces.y_lo={inflow=3.8}"]);
-    assert!(slow.gravity_gathers_particles(d, rho));
+    assert!(slow.gravity_gathers_particles(d));
     let fast = shipped_scenario("riser-nonideal.toml", &["gas.faces.y_lo={inflow=3.9}"]);
-    assert!(!fast.gravity_gathers_particles(d, rho));
+    assert!(!fast.gravity_gathers_particles(d));
     // The jet bed's background inflow, 1.25 m/s, is near u_mf: a bed.
     let jet = shipped_scenario("bubbling-bed-jet.toml", &[]);
-    let jet_d = jet.max_diameter();
-    let jet_rho = jet.materials[jet.populations[0].material as usize]
-        .density
-        .unwrap();
-    assert!(jet.gravity_gathers_particles(jet_d, jet_rho));
+    assert!(jet.gravity_gathers_particles(jet.max_diameter()));
     // Gravity without gas gathers; no gravity does not.
     let box_walls = shipped_scenario("box-walls.toml", &[]);
-    assert!(box_walls.gravity_gathers_particles(1e-3, 2500.0));
+    assert!(box_walls.gravity_gathers_particles(1e-3));
     let hcs = shipped_scenario("hcs-3d.toml", &[]);
-    assert!(!hcs.gravity_gathers_particles(1e-3, 2500.0));
+    assert!(!hcs.gravity_gathers_particles(1e-3));
 
     // A riser continued from a full state (solids fraction 0.035 here,
     // above the bed rule's 0.02) searches with cells, 2.6x faster there

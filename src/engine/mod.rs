@@ -163,20 +163,28 @@ pub enum NeighbourSearch {
 /// 10976 and 108000; results/benchmarks.md, third session).
 pub const CELLS_BELOW_FRACTION: f64 = 0.325;
 
+/// Solids fraction below which `auto` chooses cells where gravity gathers
+/// the particles into a bed (lists are 2x faster in the bed that forms:
+/// measured on scenarios/box-walls.toml).
+pub const CELLS_BELOW_FRACTION_IN_BEDS: f64 = 0.02;
+
 /// Slots from which the partner searches prefetch ([`Engine::prefetches`]):
 /// 2 MiB of 64-byte kinematics, the size of this machine's L2 cache.
 pub const PREFETCH_MIN_SLOTS: usize = 1 << 15;
 
 /// The `auto` neighbour search, shared by `edpm run`, `edpm bench` and the
 /// resolved scenario: cells when the solids fraction is below
-/// [`CELLS_BELOW_FRACTION`], or below 0.02 where gravity gathers the
-/// particles into a bed (`bed`: lists are 2x faster in the dense bed that
-/// forms, measured on scenarios/box-walls.toml), and every periodic axis
+/// [`CELLS_BELOW_FRACTION`], or below [`CELLS_BELOW_FRACTION_IN_BEDS`]
+/// where gravity gathers the particles into a bed (`bed`), and every periodic axis
 /// spans at least three cells of one largest diameter (`cells_fit`); lists
 /// otherwise. A riser's gas carries its particles (`bed` false): cells
 /// were 2.6x faster there (results/benchmarks.md, seventeenth session).
 pub fn auto_neighbour_search(solids_fraction: f64, bed: bool, cells_fit: bool) -> NeighbourSearch {
-    let threshold = if bed { 0.02 } else { CELLS_BELOW_FRACTION };
+    let threshold = if bed {
+        CELLS_BELOW_FRACTION_IN_BEDS
+    } else {
+        CELLS_BELOW_FRACTION
+    };
     if solids_fraction < threshold && cells_fit {
         NeighbourSearch::Cells
     } else {

@@ -157,16 +157,9 @@ fn neighbour_search(s: &Scenario, particles: &[NewParticle], r_max: f64) -> Neig
             let size = s.domain.extent();
             let cells_fit =
                 (0..3).all(|a| !s.boundaries.is_periodic(a) || size[a] >= 3.0 * 2.0 * r_max);
-            // The particles placed and those the populations (the inlet)
-            // may add, as the resolved scenario's note counts them.
-            let materials = particles.iter().map(|p| p.material);
-            let rho_max = materials
-                .chain(s.populations.iter().map(|p| p.material))
-                .filter_map(|m| s.materials.get(m as usize)?.density)
-                .fold(0.0, f64::max);
             auto_neighbour_search(
                 solids / s.domain.volume(),
-                s.gravity_gathers_particles(2.0 * r_max, rho_max),
+                s.gravity_gathers_particles(2.0 * r_max),
                 cells_fit,
             )
         }

@@ -599,11 +599,10 @@ impl Scenario {
     /// ([`crate::engine::auto_neighbour_search`]): gravity, and no uniform
     /// gas inflow, through the face gravity points at, faster than the
     /// terminal velocity (Schiller–Naumann, seed 001 Eq. 4) of a particle of
-    /// the largest diameter `d_max` (m) and the largest density `rho_max`
-    /// (kg/m³), an upper bound on every particle's. Jets do not count: a
-    /// jet bed is a bed. A riser's gas carries its particles and keeps
-    /// them dilute.
-    pub fn gravity_gathers_particles(&self, d_max: f64, rho_max: f64) -> bool {
+    /// the largest diameter `d_max` (m) and the densest particle material,
+    /// an upper bound on every particle's. Jets do not count: a jet bed is
+    /// a bed. A riser's gas carries its particles and keeps them dilute.
+    pub fn gravity_gathers_particles(&self, d_max: f64) -> bool {
         let g = self.domain.gravity;
         if g == DVec3::ZERO {
             return false;
@@ -618,6 +617,10 @@ impl Scenario {
             return true;
         };
         let rho_g = gas.model.density(gas.pressure);
+        // Every particle, a checkpoint's too, is of one of these materials.
+        let rho_max = (self.materials.iter())
+            .filter_map(|m| m.density)
+            .fold(0.0, f64::max);
         let terminal =
             crate::gas::drag::terminal_velocity(d_max, rho_max, rho_g, gas.viscosity, g.length());
         velocity <= terminal

@@ -477,12 +477,7 @@ fn expected_neighbours(s: &Scenario) -> String {
     let d_max = s.max_diameter();
     let extent = s.domain.extent();
     let cells_fit = (0..3).all(|a| !s.boundaries.is_periodic(a) || extent[a] >= 3.0 * d_max);
-    let rho_max = s
-        .populations
-        .iter()
-        .filter_map(|p| s.materials.get(p.material as usize)?.density)
-        .fold(0.0, f64::max);
-    let gathers = s.gravity_gathers_particles(d_max, rho_max);
+    let gathers = s.gravity_gathers_particles(d_max);
     let choice = match crate::engine::auto_neighbour_search(fraction, gathers, cells_fit) {
         NeighbourSearch::Cells => "cells",
         NeighbourSearch::Lists => "lists",
@@ -490,7 +485,10 @@ fn expected_neighbours(s: &Scenario) -> String {
     format!(
         "auto: expected {choice} (initial solids fraction {fraction:.3e} from the populations' mean volumes; threshold {}; the run decides from the particles it places)",
         if gathers {
-            "0.02 where gravity gathers the particles into a bed".to_string()
+            format!(
+                "{} where gravity gathers the particles into a bed",
+                crate::engine::CELLS_BELOW_FRACTION_IN_BEDS
+            )
         } else {
             crate::engine::CELLS_BELOW_FRACTION.to_string()
         }
