@@ -278,15 +278,15 @@ impl Link {
 
 impl CellGrid {
     /// Cells per axis of a grid over a box of `size` with cells at least
-    /// `min_width` wide: `floor(size / min_width)` per axis (at least 1, at
-    /// most 1024), then widened uniformly until there are at most
+    /// `min_width[axis]` wide: `floor(size / min_width)` per axis (at least
+    /// 1, at most 1024), then widened uniformly until there are at most
     /// [`MAX_CELLS`], keeping at least 3 cells (where there were) on
     /// periodic axes.
-    pub fn dims_for(size: DVec3, min_width: f64, periodic: [bool; 3]) -> [usize; 3] {
+    pub fn dims_for(size: DVec3, min_width: DVec3, periodic: [bool; 3]) -> [usize; 3] {
         let mut n = [1.0f64; 3];
         let mut floor = [1.0f64; 3];
         for axis in 0..3 {
-            let k = (size[axis] / min_width).floor();
+            let k = (size[axis] / min_width[axis]).floor();
             // NaN (a flat axis with zero width) and values below 1: one cell.
             n[axis] = if k >= 1.0 {
                 k.min(MAX_CELLS_PER_AXIS)
@@ -314,9 +314,9 @@ impl CellGrid {
         n.map(|k| k as usize)
     }
 
-    /// Grid over `[lo, hi]` with cells at least `min_width` wide per axis
+    /// Grid over `[lo, hi]` with cells at least `min_width[axis]` wide
     /// (see [`CellGrid::dims_for`]).
-    pub fn new(lo: DVec3, hi: DVec3, min_width: f64, periodic: [bool; 3], slots: usize) -> Self {
+    pub fn new(lo: DVec3, hi: DVec3, min_width: DVec3, periodic: [bool; 3], slots: usize) -> Self {
         let size = hi - lo;
         let cells = Self::dims_for(size, min_width, periodic);
         let mut inverse_width = DVec3::ZERO;
@@ -858,17 +858,17 @@ mod tests {
     fn grid_cells_are_capped_in_total() {
         let size = DVec3::new(1.0, 2.0, 1.0);
         // 1e-4 wide cells would be 1e4 x 2e4 x 1e4 (1024 per axis at most).
-        let n = CellGrid::dims_for(size, 1e-4, [true, false, false]);
+        let n = CellGrid::dims_for(size, DVec3::splat(1e-4), [true, false, false]);
         assert!(n.iter().product::<usize>() <= MAX_CELLS, "{n:?}");
         assert!(n.iter().all(|&k| k >= 100), "{n:?}");
         // Degenerate widths give one cell, never zero or an overflow.
         assert_eq!(
-            CellGrid::dims_for(size, f64::INFINITY, [false; 3]),
+            CellGrid::dims_for(size, DVec3::INFINITY, [false; 3]),
             [1, 1, 1]
         );
-        assert_eq!(CellGrid::dims_for(DVec3::ZERO, 0.0, [false; 3]), [1, 1, 1]);
+        assert_eq!(CellGrid::dims_for(DVec3::ZERO, DVec3::ZERO, [false; 3]), [1, 1, 1]);
         // Periodic axes keep at least 3 cells where they had them.
-        let n = CellGrid::dims_for(DVec3::new(5.0, 1e4, 1e4), 1.0, [true, false, false]);
+        let n = CellGrid::dims_for(DVec3::new(5.0, 1e4, 1e4), DVec3::ONE, [true, false, false]);
         assert!(n[0] >= 3, "{n:?}");
         assert!(n.iter().product::<usize>() <= MAX_CELLS, "{n:?}");
     }
@@ -878,7 +878,7 @@ mod tests {
     #[test]
     fn grid_bytes_bound_holds_a_grid() {
         for (size, slots) in [(DVec3::new(10.0, 20.0, 5.0), 1000), (DVec3::splat(3.0), 7)] {
-            let g = CellGrid::new(DVec3::ZERO, size, 1.0, [true, false, true], slots);
+            let g = CellGrid::new(DVec3::ZERO, size, DVec3::ONE, [true, false, true], slots);
             let d = g.dims();
             let bound = grid_bytes_bound(d[0] * d[1] * d[2], slots);
             let used = g.heap_bytes();
@@ -945,7 +945,7 @@ mod tests {
         for (size, periodic) in grids {
             let hi = DVec3::from_array(size);
             let slots = 60;
-            let mut g = CellGrid::new(DVec3::ZERO, hi, 1.0, periodic, slots);
+            let mut g = CellGrid::new(DVec3::ZERO, hi, DVec3::ONE, periodic, slots);
             for round in 0..4 {
                 // Place, move and remove at random; some cells overflow.
                 for i in 0..slots {
@@ -1014,7 +1014,7 @@ mod tests {
     fn grid_finds_each_near_particle_once_with_periodic_wrap() {
         let lo = DVec3::ZERO;
         let hi = DVec3::new(10.0, 10.0, 2.0);
-        let mut g = CellGrid::new(lo, hi, 1.0, [true, false, true], 12);
+        let mut g = CellGrid::new(lo, hi, DVec3::ONE, [true, false, true], 12);
         g.place(0, DVec3::new(0.5, 0.5, 0.5));
         g.place(1, DVec3::new(9.5, 0.5, 1.5)); // across the periodic x face
         g.place(2, DVec3::new(5.0, 5.0, 1.0));

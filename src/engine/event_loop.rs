@@ -208,6 +208,7 @@ impl<Q: EventQueue> Engine<Q> {
     /// re-predicted, which happens lazily before the next event.
     pub fn end_flow_step(&mut self) {
         self.synchronise();
+        self.adapt_cell_shape();
         let time = self.time();
         for i in 0..self.kin.len() {
             if self.active[i]

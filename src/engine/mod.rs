@@ -15,6 +15,7 @@
 //! particle is re-predicted.
 
 mod boundaries;
+mod cell_shape;
 mod contacts;
 mod dynamics;
 mod event_loop;
@@ -26,6 +27,7 @@ mod soft_stepper;
 mod state;
 mod store;
 
+pub use cell_shape::{CellShape, CellShapeRule};
 pub use dynamics::ParticleDynamics;
 pub use records::{
     BadParticle, CollapseReport, CollisionRecord, Counters, ElasticRule, Partner, Record,
@@ -81,6 +83,9 @@ pub struct EngineConfig {
     /// kicks are all uniform (gravity without gas). Cells mode always keeps
     /// its pairs.
     pub keep_pairs: bool,
+    /// Cells mode: whether cells turn tall along a streaming axis between
+    /// flow steps ([`cell_shape`]).
+    pub cell_shape: CellShapeRule,
 }
 
 /// Whether the partner searches gather candidates in batches and prefetch
@@ -206,6 +211,7 @@ impl Default for EngineConfig {
             soft: SoftConfig::default(),
             prefetch: Prefetch::Auto,
             keep_pairs: false,
+            cell_shape: CellShapeRule::Square,
         }
     }
 }
@@ -282,6 +288,8 @@ pub struct Engine<Q: EventQueue> {
 
     lists: NeighbourLists,
     cells: CellGrid,
+    /// Cells mode: the cell shape and the counts that choose it.
+    cell_shape: CellShape,
     queue: Q,
     rng: Xoshiro256PlusPlus,
 
@@ -425,7 +433,8 @@ impl<Q: EventQueue> Engine<Q> {
         let cells_mode = config.neighbours == NeighbourSearch::Cells;
         let keeps_list_pairs = keeps_list_pairs(&config);
         let mut engine = Engine {
-            cells: CellGrid::new(domain.lo, domain.hi, cell_width, periodic, n),
+            cells: CellGrid::new(domain.lo, domain.hi, DVec3::splat(cell_width), periodic, n),
+            cell_shape: CellShape::default(),
             domain,
             materials,
             r_max,

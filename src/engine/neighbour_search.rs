@@ -109,6 +109,7 @@ impl<Q: EventQueue> Engine<Q> {
             c[axis] -= 1;
         }
         self.counters.neighbour_updates += 1;
+        self.cell_shape.crossings[axis] += 1;
         if shift != 0.0 {
             // New coordinates: the kept pair's image code no longer holds.
             self.sync(i);

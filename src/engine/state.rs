@@ -17,7 +17,7 @@ use rand_xoshiro::Xoshiro256PlusPlus;
 use serde::{Deserialize, Serialize};
 
 use super::store::{CellState, EventState, Kinematics, NO_PAIR, PairCandidate, Spins};
-use super::{CollapseReport, ContactModel, Counters, Engine, SoftStats};
+use super::{CellShape, CollapseReport, ContactModel, Counters, Engine, SoftStats};
 use crate::neighbours::{CellEntry, CellGrid, NeighbourLists};
 use crate::particles::NewParticle;
 use crate::queue::EventQueue;
@@ -77,6 +77,9 @@ pub struct EngineState {
     /// partner's event counter; entry `u32::MAX`: no pair before that
     /// time), from which the next prediction starts ([`Engine::predict_all`]).
     pub kept_pairs: Option<Vec<(f64, u32, u32)>>,
+    /// Cells mode: the cell shape the grid entries refer to, and the counts
+    /// behind its next choice.
+    pub cell_shape: CellShape,
 }
 
 /// Whether a packed neighbour entry names a slot below `n` and one of the
@@ -211,6 +214,7 @@ impl<Q: EventQueue> Engine<Q> {
                     })
                     .collect()
             }),
+            cell_shape: self.cell_shape,
         })
     }
 
@@ -262,6 +266,19 @@ impl<Q: EventQueue> Engine<Q> {
             .to_lowercase());
         }
         let n = state.slots.len();
+        if state.cell_shape.tall_axis.is_some_and(|a| !self.uses_cells() || a > 2) {
+            return Err("a tall cell axis that this scenario's neighbour search cannot have".into());
+        }
+        // The grid entries name cells of the state's shape.
+        if self.uses_cells() {
+            self.cells = CellGrid::new(
+                self.domain.lo,
+                self.domain.hi,
+                self.cell_min_width(state.cell_shape.tall_axis),
+                self.periodic_axes(),
+                n,
+            );
+        }
         let dims = self.cells.dims();
         let cells = (dims[0] * dims[1] * dims[2]) as u64;
         if state.lists.len() != n
@@ -380,6 +397,7 @@ impl<Q: EventQueue> Engine<Q> {
         self.collapse_reports = state.collapse_reports;
         self.stall = None;
         self.soft_stats = state.soft_stats;
+        self.cell_shape = state.cell_shape;
         Ok(())
     }
 }

@@ -185,7 +185,11 @@ fn memory_estimate(s: &Scenario, p: Particles) -> MemoryEstimate {
     let list = list.min(p.count).max(24.0);
     let cell_width = if lists { reach } else { p.d_max };
     let periodic = std::array::from_fn(|a| s.boundaries.is_periodic(a));
-    let dims = crate::neighbours::CellGrid::dims_for(s.domain.extent(), cell_width, periodic);
+    let dims = crate::neighbours::CellGrid::dims_for(
+        s.domain.extent(),
+        DVec3::splat(cell_width),
+        periodic,
+    );
     let cells = dims.iter().product::<usize>();
     let slots = p.count.min(usize::MAX as f64 / 2.0) as usize;
     let mut m = MemoryEstimate {

@@ -359,6 +359,9 @@ pub enum NeighbourChoice {
 pub struct EngineSettings {
     pub queue: crate::queue::QueueKind,
     pub neighbours: NeighbourChoice,
+    /// Cells mode: square cells, or tall ones along a streaming axis
+    /// between flow steps ([`crate::engine::CellShapeRule`]).
+    pub cell_shape: crate::engine::CellShapeRule,
     /// Neighbour-shell thickness as a fraction of the largest diameter,
     /// in (0, 2].
     pub skin: f64,

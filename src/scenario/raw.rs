@@ -167,6 +167,7 @@ pub(super) struct RawEngine {
     pub queue: Option<crate::queue::QueueKind>,
     pub skin: Option<f64>,
     pub neighbours: Option<super::NeighbourChoice>,
+    pub cell_shape: Option<crate::engine::CellShapeRule>,
     pub model: Option<crate::engine::ContactModel>,
     pub soft: Option<RawSoft>,
 }

@@ -19,7 +19,7 @@ use super::{
     AxisBoundary, Diameter, FluxBasis, NeighbourChoice, Placement, Scenario, Splitting, Stiffness,
 };
 use crate::collision::ContactParams;
-use crate::engine::{ContactModel, NeighbourSearch};
+use crate::engine::{CellShapeRule, ContactModel, NeighbourSearch};
 use crate::gas::{
     DragLaw, GasConfig, GasFace, GasModel, PlanarPorosity, PorosityMapping, PressureSolverKind,
 };
@@ -146,6 +146,11 @@ pub fn resolved_toml(s: &Scenario) -> String {
     if s.engine.neighbours == NeighbourChoice::Auto {
         w.comment(&expected_neighbours(s));
     }
+    let cell_shape = match s.engine.cell_shape {
+        CellShapeRule::Adaptive => "adaptive",
+        CellShapeRule::Square => "square",
+    };
+    w.key("cell_shape", quote(cell_shape), "cells mode");
     w.key(
         "skin",
         float(s.engine.skin),

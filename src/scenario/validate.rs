@@ -917,9 +917,9 @@ fn validate_time(ctx: &Ctx, raw: &raw::RawTime) -> R<TimeSettings> {
 /// `[engine]`: queue, neighbour search, skin, contact model and
 /// `[engine.soft]`.
 fn validate_engine(ctx: &Ctx, raw: Option<raw::RawEngine>) -> R<EngineSettings> {
-    let (queue, skin, neighbours, model, soft) = match raw {
-        Some(e) => (e.queue, e.skin, e.neighbours, e.model, e.soft),
-        None => (None, None, None, None, None),
+    let (queue, skin, neighbours, cell_shape, model, soft) = match raw {
+        Some(e) => (e.queue, e.skin, e.neighbours, e.cell_shape, e.model, e.soft),
+        None => (None, None, None, None, None, None),
     };
     let skin = skin.unwrap_or(DEFAULT_SKIN);
     if !(skin > 0.0 && skin <= 2.0) {
@@ -937,6 +937,7 @@ fn validate_engine(ctx: &Ctx, raw: Option<raw::RawEngine>) -> R<EngineSettings> 
         queue: queue.unwrap_or(crate::queue::QueueKind::Calendar),
         skin,
         neighbours,
+        cell_shape: cell_shape.unwrap_or(crate::engine::CellShapeRule::Adaptive),
         model,
         soft: validate_soft(ctx, soft)?,
     })

@@ -1,0 +1,219 @@
+//! Cells mode: cells stretched along the axis most crossings are on.
+//!
+//! In a riser the particles stream along the flow: 82 % of the cell
+//! crossings of the ideal riser are vertical, 36 for each pair collision
+//! (results/benchmarks.md, eighteenth session). Cells three times taller
+//! along such an axis cut those crossing events threefold, while every
+//! partner search scans cells holding three times as many particles. That
+//! pays where crossings outnumber collisions many times over (the ideal
+//! riser) and costs where collisions dominate (the non-ideal riser's
+//! clusters, 3.4 crossings a collision). At each flow-step end the engine
+//! counts both since it last chose, and stretches ([`TALL_FACTOR`]) or
+//! squares its cells with hysteresis between [`TALL_ABOVE`] and
+//! [`SQUARE_BELOW`]. The shape changes the round-off of event times
+//! (so the bits of a run, not its physics): a run stays deterministic whatever the
+//! thread count, and a restart file carries the shape and its counts.
+
+use glam::DVec3;
+
+use super::{Engine, EngineError, NeighbourSearch};
+use crate::domain::AxisBoundary;
+use crate::neighbours::CellGrid;
+use crate::queue::EventQueue;
+
+/// Cell height along the stretched axis, in cells of the square grid.
+pub const TALL_FACTOR: f64 = 3.0;
+
+/// Square-equivalent crossings along the dominant axis per pair collision
+/// above which cells turn tall, and below which tall cells turn square
+/// again. Measured end points: 36 (ideal riser, where tall cells save
+/// 10–20 %) and 3.4 (non-ideal riser, where they cost 10–25 %); the
+/// thresholds sit either side of their geometric mean, 11.
+pub const TALL_ABOVE: f64 = 16.0;
+pub const SQUARE_BELOW: f64 = 8.0;
+
+/// The dominant axis carries at least this many times the crossings of
+/// every other axis (square-equivalent): streaming, not a random walk.
+const DOMINANCE: f64 = 2.0;
+
+/// Crossings per particle (and at least [`MIN_WINDOW_CROSSINGS`]) counted
+/// before a choice.
+const WINDOW_CROSSINGS_PER_PARTICLE: u64 = 4;
+const MIN_WINDOW_CROSSINGS: u64 = 1000;
+
+/// Whether cells mode may change its cell shape between flow steps.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum CellShapeRule {
+    /// Square cells (the largest diameter wide) throughout.
+    #[default]
+    Square,
+    /// Tall cells along the streaming axis where crossings outnumber
+    /// collisions (this module's rule).
+    Adaptive,
+}
+
+/// The cell shape of cells mode and the events counted since it was last
+/// chosen.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct CellShape {
+    /// The axis whose cells are [`TALL_FACTOR`] times taller, if any.
+    pub tall_axis: Option<u8>,
+    /// Cell crossings per axis since the last choice.
+    pub crossings: [u64; 3],
+    /// [`super::Counters::pair_collisions`] at the last choice.
+    pub collisions_at_choice: u64,
+}
+
+/// What the counts since the last choice ask for: `Some(tall axis or
+/// None)`, or `None` to keep the shape. `crossings` are square-equivalent
+/// (each axis's count times its cell height over the square height).
+pub fn choose_tall_axis(
+    current: Option<u8>,
+    crossings: [f64; 3],
+    collisions: u64,
+) -> Option<Option<u8>> {
+    let axis = (0..3).fold(0, |best, a| {
+        if crossings[a] > crossings[best] {
+            a
+        } else {
+            best
+        }
+    });
+    let dominant = (0..3).all(|a| a == axis || crossings[axis] >= DOMINANCE * crossings[a]);
+    let ratio = crossings[axis] / collisions.max(1) as f64;
+    let want = if dominant && ratio > TALL_ABOVE {
+        Some(axis as u8)
+    } else if !dominant || ratio < SQUARE_BELOW {
+        None
+    } else {
+        current
+    };
+    (want != current).then_some(want)
+}
+
+impl<Q: EventQueue> Engine<Q> {
+    /// Cells per axis of the square grid: cells the largest diameter wide.
+    fn square_dims(&self) -> [usize; 3] {
+        let d = DVec3::splat(2.0 * self.r_max);
+        CellGrid::dims_for(self.domain.size(), d, self.periodic_axes())
+    }
+
+    /// Minimum cell widths (m) of cells mode with `tall_axis` stretched:
+    /// the largest diameter, and [`TALL_FACTOR`] square cells along the
+    /// tall axis.
+    pub(super) fn cell_min_width(&self, tall_axis: Option<u8>) -> DVec3 {
+        let mut width = DVec3::splat(2.0 * self.r_max);
+        if let Some(axis) = tall_axis {
+            let axis = axis as usize;
+            let square = self.square_dims()[axis] as f64;
+            // Shaved by round-off so that the division in `dims_for` gives
+            // exactly a third of the square cells.
+            width[axis] = TALL_FACTOR * self.domain.size()[axis] / square * (1.0 - 1e-12);
+        }
+        width
+    }
+
+    pub(super) fn periodic_axes(&self) -> [bool; 3] {
+        self.domain.axes.map(|a| a == AxisBoundary::Periodic)
+    }
+
+    /// Cells mode, adaptive rule, at a flow-step end (every particle
+    /// synchronised, predictions due): chooses the cell shape from the
+    /// counts since the last choice, and rebuilds the grid when it changes.
+    pub(super) fn adapt_cell_shape(&mut self) {
+        if self.config.neighbours != NeighbourSearch::Cells
+            || self.config.cell_shape != CellShapeRule::Adaptive
+        {
+            return;
+        }
+        let counted: u64 = self.cell_shape.crossings.iter().sum();
+        let window = MIN_WINDOW_CROSSINGS.max(WINDOW_CROSSINGS_PER_PARTICLE * self.len() as u64);
+        if counted < window {
+            return;
+        }
+        // Square-equivalent: a cell k times taller is crossed k times less.
+        let (square, now) = (self.square_dims(), self.cells.dims());
+        let crossings = std::array::from_fn(|a| {
+            self.cell_shape.crossings[a] as f64 * square[a] as f64 / now[a] as f64
+        });
+        let collisions = self.counters.pair_collisions - self.cell_shape.collisions_at_choice;
+        self.cell_shape.crossings = [0; 3];
+        self.cell_shape.collisions_at_choice = self.counters.pair_collisions;
+        if let Some(tall_axis) = choose_tall_axis(self.cell_shape.tall_axis, crossings, collisions) {
+            // A shape that leaves a periodic axis with fewer than 3 cells
+            // is refused: the cells stay as they are.
+            let _ = self.set_tall_cell_axis(tall_axis);
+        }
+    }
+
+    /// The axis whose cells are tall in cells mode, if any.
+    pub fn tall_cell_axis(&self) -> Option<u8> {
+        self.cell_shape.tall_axis
+    }
+
+    /// Cells mode, between events: rebuilds the grid with cells
+    /// [`TALL_FACTOR`] times taller along `tall_axis` (square with `None`)
+    /// and leaves every particle to be re-predicted. `Err` (nothing
+    /// changed) outside cells mode, for an axis beyond 2, or where a
+    /// periodic axis would keep fewer than 3 cells.
+    pub fn set_tall_cell_axis(&mut self, tall_axis: Option<u8>) -> Result<(), EngineError> {
+        if self.config.neighbours != NeighbourSearch::Cells {
+            return Err(EngineError::Config("only cells mode has a cell shape".into()));
+        }
+        if tall_axis.is_some_and(|a| a > 2) {
+            return Err(EngineError::Config(format!("no axis {tall_axis:?}")));
+        }
+        let grid = CellGrid::new(
+            self.domain.lo,
+            self.domain.hi,
+            self.cell_min_width(tall_axis),
+            self.periodic_axes(),
+            self.kin.len(),
+        );
+        let dims = grid.dims();
+        if (0..3).any(|a| self.periodic_axes()[a] && dims[a] < 3) {
+            return Err(EngineError::Config(format!(
+                "tall cells along axis {tall_axis:?} leave a periodic axis with fewer than 3 cells ({dims:?})"
+            )));
+        }
+        self.synchronise();
+        self.cell_shape.tall_axis = tall_axis;
+        self.cells = grid;
+        for i in 0..self.kin.len() {
+            if self.active[i] {
+                self.enter_grid(i);
+            }
+        }
+        // Kept pairs were searched in the old cells, up to their exits.
+        self.kicks_uniform = false;
+        self.needs_prediction = true;
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tall_cells_follow_streaming_and_square_cells_follow_collisions() {
+        // The ideal riser's window: 26 crossings per collision vertically.
+        assert_eq!(
+            choose_tall_axis(None, [4.8e6, 2.1e7, 0.0], 8e5),
+            Some(Some(1))
+        );
+        // Inside the hysteresis band nothing changes, either way.
+        assert_eq!(choose_tall_axis(Some(1), [1e5, 1e6, 0.0], 1e5 as u64), None);
+        assert_eq!(choose_tall_axis(None, [1e5, 1e6, 0.0], 1e5 as u64), None);
+        // The non-ideal riser: 3.4 crossings per collision.
+        assert_eq!(
+            choose_tall_axis(Some(1), [1.2e6, 5.6e6, 0.0], 1.64e6 as u64),
+            Some(None)
+        );
+        // No streaming axis (a granular gas): square, however few the
+        // collisions.
+        assert_eq!(choose_tall_axis(Some(0), [1e6, 0.8e6, 0.9e6], 10), Some(None));
+        assert_eq!(choose_tall_axis(None, [1e6, 0.8e6, 0.9e6], 10), None);
+    }
+}
