@@ -382,6 +382,11 @@ fn guard_dominated_hard_sphere_bed_stops_with_the_remedy() {
             "engine.model=\"hard\"",
             "--set",
             "engine.neighbours=\"cells\"",
+            // The trajectory of seed 6 in square cells collapses onto the
+            // guard; tall cells while the bed falls change its round-off
+            // and so its chaotic path (with them the TC model holds it).
+            "--set",
+            "engine.cell_shape=\"square\"",
             "--set",
             "seed=6",
         ],

@@ -192,3 +192,17 @@ fn lists_run_with_kept_pairs_is_bit_identical_on_one_and_two_threads() {
         ],
     );
 }
+
+/// The filling ideal riser, whose streaming particles turn its cells tall
+/// at a flow-step end (`[engine] cell_shape`): the choice comes from event
+/// counts, the same whatever the thread count.
+#[test]
+fn riser_with_tall_cells_is_bit_identical_on_one_and_two_threads() {
+    let scenario = "scenarios/riser-ideal.toml";
+    // Long enough for some hundreds of collisions in the filling riser.
+    let step = ["--set", "time.dt_flow=1e-3"];
+    assert_thread_independent(scenario, "0.4", &step);
+    let s = summary(&run(scenario, "0.4", 2, &step));
+    assert_eq!(s["tall_cell_axis"], 1, "the cells never turned tall");
+    assert!(s["counters"]["cell_shape_changes"].as_u64() >= Some(1));
+}

@@ -179,6 +179,7 @@ impl<Q: EventQueue> Engine<Q> {
         }
         self.synchronise();
         self.cell_shape.tall_axis = tall_axis;
+        self.counters.cell_shape_changes += 1;
         self.cells = grid;
         for i in 0..self.kin.len() {
             if self.active[i] {
@@ -200,15 +201,15 @@ mod tests {
     fn tall_cells_follow_streaming_and_square_cells_follow_collisions() {
         // The ideal riser's window: 26 crossings per collision vertically.
         assert_eq!(
-            choose_tall_axis(None, [4.8e6, 2.1e7, 0.0], 8e5),
+            choose_tall_axis(None, [4.8e6, 2.1e7, 0.0], 800_000),
             Some(Some(1))
         );
         // Inside the hysteresis band nothing changes, either way.
-        assert_eq!(choose_tall_axis(Some(1), [1e5, 1e6, 0.0], 1e5 as u64), None);
-        assert_eq!(choose_tall_axis(None, [1e5, 1e6, 0.0], 1e5 as u64), None);
+        assert_eq!(choose_tall_axis(Some(1), [1e5, 1e6, 0.0], 100_000), None);
+        assert_eq!(choose_tall_axis(None, [1e5, 1e6, 0.0], 100_000), None);
         // The non-ideal riser: 3.4 crossings per collision.
         assert_eq!(
-            choose_tall_axis(Some(1), [1.2e6, 5.6e6, 0.0], 1.64e6 as u64),
+            choose_tall_axis(Some(1), [1.2e6, 5.6e6, 0.0], 1_640_000),
             Some(None)
         );
         // No streaming axis (a granular gas): square, however few the

@@ -118,6 +118,8 @@ pub struct Counters {
     pub wall_collisions: u64,
     /// Neighbour-shell rebuilds (lists) or cell crossings (cells).
     pub neighbour_updates: u64,
+    /// Cells mode: times the cell shape changed ([`super::CellShapeRule`]).
+    pub cell_shape_changes: u64,
     pub stale_events: u64,
     /// Predicted pair contacts that were not approaching at the contact
     /// (grazing pairs, by round-off) and were re-predicted, not collided.

@@ -135,6 +135,9 @@ pub struct Summary {
     pub flow_steps: u64,
     pub queue: QueueKind,
     pub neighbours: NeighbourSearch,
+    /// Cells mode: the axis along which the cells were three times taller
+    /// at the end (`[engine] cell_shape`), if any.
+    pub tall_cell_axis: Option<u8>,
     /// Neighbour-shell thickness used (m).
     pub skin: f64,
     pub rotation_tracked: bool,
@@ -704,6 +707,7 @@ fn simulate<Q: EventQueue>(
         flow_steps: plan.steps,
         queue: s.engine.queue,
         neighbours: engine.neighbour_search(),
+        tall_cell_axis: engine.tall_cell_axis(),
         skin: engine.skin(),
         rotation_tracked: engine.is_rough(),
         model: engine.model(),
