@@ -29,7 +29,13 @@ use edpm::queue::CalendarQueue;
 fn cell_scan(c: &mut Criterion) {
     // Unit spheres at φ = 0.1 in cells one diameter wide, as cells mode has.
     let (domain, particles) = fcc_system(4000, 0.1, 1);
-    let mut grid = CellGrid::new(domain.lo, domain.hi, 1.0, [true; 3], particles.len());
+    let mut grid = CellGrid::new(
+        domain.lo,
+        domain.hi,
+        glam::DVec3::ONE,
+        [true; 3],
+        particles.len(),
+    );
     for (i, p) in particles.iter().enumerate() {
         grid.place(i, p.pos);
     }

@@ -866,7 +866,10 @@ mod tests {
             CellGrid::dims_for(size, DVec3::INFINITY, [false; 3]),
             [1, 1, 1]
         );
-        assert_eq!(CellGrid::dims_for(DVec3::ZERO, DVec3::ZERO, [false; 3]), [1, 1, 1]);
+        assert_eq!(
+            CellGrid::dims_for(DVec3::ZERO, DVec3::ZERO, [false; 3]),
+            [1, 1, 1]
+        );
         // Periodic axes keep at least 3 cells where they had them.
         let n = CellGrid::dims_for(DVec3::new(5.0, 1e4, 1e4), DVec3::ONE, [true, false, false]);
         assert!(n[0] >= 3, "{n:?}");

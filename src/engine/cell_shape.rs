@@ -140,7 +140,8 @@ impl<Q: EventQueue> Engine<Q> {
         let collisions = self.counters.pair_collisions - self.cell_shape.collisions_at_choice;
         self.cell_shape.crossings = [0; 3];
         self.cell_shape.collisions_at_choice = self.counters.pair_collisions;
-        if let Some(tall_axis) = choose_tall_axis(self.cell_shape.tall_axis, crossings, collisions) {
+        if let Some(tall_axis) = choose_tall_axis(self.cell_shape.tall_axis, crossings, collisions)
+        {
             // A shape that leaves a periodic axis with fewer than 3 cells
             // is refused: the cells stay as they are.
             let _ = self.set_tall_cell_axis(tall_axis);
@@ -159,7 +160,9 @@ impl<Q: EventQueue> Engine<Q> {
     /// periodic axis would keep fewer than 3 cells.
     pub fn set_tall_cell_axis(&mut self, tall_axis: Option<u8>) -> Result<(), EngineError> {
         if self.config.neighbours != NeighbourSearch::Cells {
-            return Err(EngineError::Config("only cells mode has a cell shape".into()));
+            return Err(EngineError::Config(
+                "only cells mode has a cell shape".into(),
+            ));
         }
         if tall_axis.is_some_and(|a| a > 2) {
             return Err(EngineError::Config(format!("no axis {tall_axis:?}")));
@@ -214,7 +217,10 @@ mod tests {
         );
         // No streaming axis (a granular gas): square, however few the
         // collisions.
-        assert_eq!(choose_tall_axis(Some(0), [1e6, 0.8e6, 0.9e6], 10), Some(None));
+        assert_eq!(
+            choose_tall_axis(Some(0), [1e6, 0.8e6, 0.9e6], 10),
+            Some(None)
+        );
         assert_eq!(choose_tall_axis(None, [1e6, 0.8e6, 0.9e6], 10), None);
     }
 }

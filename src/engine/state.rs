@@ -266,8 +266,14 @@ impl<Q: EventQueue> Engine<Q> {
             .to_lowercase());
         }
         let n = state.slots.len();
-        if state.cell_shape.tall_axis.is_some_and(|a| !self.uses_cells() || a > 2) {
-            return Err("a tall cell axis that this scenario's neighbour search cannot have".into());
+        if state
+            .cell_shape
+            .tall_axis
+            .is_some_and(|a| !self.uses_cells() || a > 2)
+        {
+            return Err(
+                "a tall cell axis that this scenario's neighbour search cannot have".into(),
+            );
         }
         // The grid entries name cells of the state's shape.
         if self.uses_cells() {
