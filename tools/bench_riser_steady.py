@@ -16,7 +16,11 @@ medians, and their ratio (results/benchmarks.md, seventeenth session).
 
 Usage: python3 tools/bench_riser_steady.py [--repeats 3] [--start 1.5]
        [--span 1.0] [--dt 1e-3] [--bin target/release/edpm]
-       [SCENARIO (default scenarios/riser-ideal.toml)]
+       [--set KEY=VALUE ...] [SCENARIO (default scenarios/riser-ideal.toml)]
+
+`--set` overrides go to every run (fills included), for instance
+`--set 'engine.cell_shape="square"'` against the default adaptive cells
+(results/benchmarks.md, eighteenth session).
 """
 
 import argparse
@@ -47,9 +51,12 @@ def main():
     p.add_argument("--span", type=float, default=1.0)
     p.add_argument("--dt", type=float, default=1e-3)
     p.add_argument("--bin", default="target/release/edpm")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     a = p.parse_args()
     step = ["--set", f"time.dt_flow={a.dt}",
             "--set", f"output.restart_interval={a.start}"]
+    for override in a.set:
+        step += ["--set", override]
     walls = {s: [] for s in SETTINGS}
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
