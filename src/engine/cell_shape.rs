@@ -10,9 +10,10 @@
 //! clusters, 3.4 crossings a collision). At each flow-step end the engine
 //! counts both since it last chose, and stretches ([`TALL_FACTOR`]) or
 //! squares its cells with hysteresis between [`TALL_ABOVE`] and
-//! [`SQUARE_BELOW`]. The shape changes the round-off of event times
-//! (so the bits of a run, not its physics): a run stays deterministic whatever the
-//! thread count, and a restart file carries the shape and its counts.
+//! [`SQUARE_BELOW`]. The shape changes the round-off of event times (so
+//! the bits of a run, not its physics): a run stays deterministic
+//! whatever the thread count, and a restart file carries the shape and
+//! its counts.
 
 use glam::DVec3;
 
@@ -26,9 +27,10 @@ pub const TALL_FACTOR: f64 = 3.0;
 
 /// Square-equivalent crossings along the dominant axis per pair collision
 /// above which cells turn tall, and below which tall cells turn square
-/// again. Measured end points: 36 (ideal riser, where tall cells save
-/// 10–20 %) and 3.4 (non-ideal riser, where they cost 10–25 %); the
-/// thresholds sit either side of their geometric mean, 11.
+/// again. Measured: at 36 (ideal riser) tall cells save 10–15 %, at 3.4
+/// (non-ideal riser) they cost 6–15 %, and from 7.7 to 13.2 (smooth
+/// collisions in dissolving strands) the two cost the same within noise
+/// (results/benchmarks.md, eighteenth session).
 pub const TALL_ABOVE: f64 = 16.0;
 pub const SQUARE_BELOW: f64 = 8.0;
 
