@@ -317,6 +317,33 @@ impl CellGrid {
     /// Grid over `[lo, hi]` with cells at least `min_width[axis]` wide
     /// (see [`CellGrid::dims_for`]).
     pub fn new(lo: DVec3, hi: DVec3, min_width: DVec3, periodic: [bool; 3], slots: usize) -> Self {
+        let mut grid = CellGrid {
+            lo,
+            cells: [1; 3],
+            inverse_width: DVec3::ZERO,
+            width: DVec3::ZERO,
+            edges: Default::default(),
+            periodic,
+            head: Vec::new(),
+            occupancy: Vec::new(),
+            next: Vec::new(),
+            links: Vec::new(),
+        };
+        grid.reshape(lo, hi, min_width, periodic, slots);
+        grid
+    }
+
+    /// Makes the grid an empty one over `[lo, hi]` with cells at least
+    /// `min_width[axis]` wide, for `slots` slots, in place: its buffers
+    /// shrink or grow without a second grid alive beside them.
+    pub fn reshape(
+        &mut self,
+        lo: DVec3,
+        hi: DVec3,
+        min_width: DVec3,
+        periodic: [bool; 3],
+        slots: usize,
+    ) {
         let size = hi - lo;
         let cells = Self::dims_for(size, min_width, periodic);
         let mut inverse_width = DVec3::ZERO;
@@ -328,12 +355,15 @@ impl CellGrid {
             };
         }
         let total = cells[0] * cells[1] * cells[2];
-        let width = DVec3::from_array(
+        self.lo = lo;
+        self.cells = cells;
+        self.inverse_width = inverse_width;
+        self.width = DVec3::from_array(
             inverse_width
                 .to_array()
                 .map(|w| if w > 0.0 { 1.0 / w } else { 0.0 }),
         );
-        let edges = std::array::from_fn(|axis| {
+        self.edges = std::array::from_fn(|axis| {
             (0..cells[axis])
                 .map(|k| {
                     if inverse_width[axis] > 0.0 {
@@ -344,18 +374,14 @@ impl CellGrid {
                 })
                 .collect()
         });
-        CellGrid {
-            lo,
-            cells,
-            inverse_width,
-            width,
-            edges,
-            periodic,
-            head: vec![NONE; total],
-            occupancy: vec![0; total.div_ceil(8) + OCCUPANCY_PAD],
-            next: vec![NONE; slots],
-            links: vec![Link::ABSENT; slots],
-        }
+        self.periodic = periodic;
+        self.head.clear();
+        self.head.resize(total, NONE);
+        self.head.shrink_to_fit();
+        self.occupancy.clear();
+        self.occupancy.resize(total.div_ceil(8) + OCCUPANCY_PAD, 0);
+        self.occupancy.shrink_to_fit();
+        self.empty(slots);
     }
 
     pub fn resize(&mut self, slots: usize) {

@@ -155,12 +155,10 @@ impl<Q: EventQueue> Engine<Q> {
         self.cell_shape.tall_axis
     }
 
-    /// Cells mode, between events: rebuilds the grid with cells
-    /// [`TALL_FACTOR`] times taller along `tall_axis` (square with `None`)
-    /// and leaves every particle to be re-predicted. `Err` (nothing
-    /// changed) outside cells mode, for an axis beyond 2, or where a
-    /// periodic axis would keep fewer than 3 cells.
-    pub fn set_tall_cell_axis(&mut self, tall_axis: Option<u8>) -> Result<(), EngineError> {
+    /// Cells per axis of cells mode with `tall_axis` stretched. `Err`
+    /// outside cells mode, for an axis beyond 2, or where a periodic axis
+    /// would keep fewer than 3 cells (a scan would then miss images).
+    pub(super) fn cell_dims(&self, tall_axis: Option<u8>) -> Result<[usize; 3], EngineError> {
         if self.config.neighbours != NeighbourSearch::Cells {
             return Err(EngineError::Config(
                 "only cells mode has a cell shape".into(),
@@ -169,23 +167,36 @@ impl<Q: EventQueue> Engine<Q> {
         if tall_axis.is_some_and(|a| a > 2) {
             return Err(EngineError::Config(format!("no axis {tall_axis:?}")));
         }
-        let grid = CellGrid::new(
-            self.domain.lo,
-            self.domain.hi,
-            self.cell_min_width(tall_axis),
-            self.periodic_axes(),
-            self.kin.len(),
-        );
-        let dims = grid.dims();
-        if (0..3).any(|a| self.periodic_axes()[a] && dims[a] < 3) {
+        let periodic = self.periodic_axes();
+        let dims = CellGrid::dims_for(self.domain.size(), self.cell_min_width(tall_axis), periodic);
+        if (0..3).any(|a| periodic[a] && dims[a] < 3) {
             return Err(EngineError::Config(format!(
                 "tall cells along axis {tall_axis:?} leave a periodic axis with fewer than 3 cells ({dims:?})"
             )));
         }
-        self.synchronise();
+        Ok(dims)
+    }
+
+    /// Cells mode: empties the grid and gives it `tall_axis`'s shape (in
+    /// place), for `slots` slots; the shape must have passed
+    /// [`Engine::cell_dims`].
+    pub(super) fn reshape_cells(&mut self, tall_axis: Option<u8>, slots: usize) {
+        let min_width = self.cell_min_width(tall_axis);
+        let periodic = self.periodic_axes();
+        let (lo, hi) = (self.domain.lo, self.domain.hi);
+        self.cells.reshape(lo, hi, min_width, periodic, slots);
         self.cell_shape.tall_axis = tall_axis;
+    }
+
+    /// Cells mode, between events: rebuilds the grid with cells
+    /// [`TALL_FACTOR`] times taller along `tall_axis` (square with `None`)
+    /// and leaves every particle to be re-predicted. `Err` (nothing
+    /// changed) as [`Engine::cell_dims`].
+    pub fn set_tall_cell_axis(&mut self, tall_axis: Option<u8>) -> Result<(), EngineError> {
+        self.cell_dims(tall_axis)?;
+        self.synchronise();
+        self.reshape_cells(tall_axis, self.kin.len());
         self.counters.cell_shape_changes += 1;
-        self.cells = grid;
         for i in 0..self.kin.len() {
             if self.active[i] {
                 self.enter_grid(i);

@@ -18,7 +18,7 @@ use serde::{Deserialize, Serialize};
 
 use super::store::{CellState, EventState, Kinematics, NO_PAIR, PairCandidate, Spins};
 use super::{CellShape, CollapseReport, ContactModel, Counters, Engine, SoftStats};
-use crate::neighbours::{CellEntry, CellGrid, NeighbourLists};
+use crate::neighbours::{CellEntry, NeighbourLists};
 use crate::particles::NewParticle;
 use crate::queue::EventQueue;
 
@@ -89,12 +89,12 @@ fn entry_fits(entry: u32, n: usize) -> bool {
     (slot as usize) < n && image < 27
 }
 
-/// Cells mode: whether every active slot's cell lies in `grid`, and the
-/// grid's entries list exactly the active slots, each in its own cell (a
-/// scan or a cell-exit time would otherwise read outside the grid, or miss
-/// particles).
-fn cells_agree(state: &EngineState, grid: &CellGrid) -> bool {
-    let dims = grid.dims();
+/// Cells mode: whether every active slot's cell lies in a grid of `dims`
+/// cells, and the grid's entries list exactly the active slots, each in
+/// its own cell (a scan or a cell-exit time would otherwise read outside
+/// the grid, or miss particles).
+fn cells_agree(state: &EngineState, dims: [usize; 3]) -> bool {
+    let flat = |c: [u64; 3]| c[0] + dims[0] as u64 * (c[1] + dims[1] as u64 * c[2]);
     let inside = |c: [u64; 3]| (0..3).all(|a| c[a] < dims[a] as u64);
     let slots = &state.slots;
     slots.iter().filter(|s| s.active).all(|s| inside(s.cell))
@@ -102,7 +102,7 @@ fn cells_agree(state: &EngineState, grid: &CellGrid) -> bool {
         && state.cells.iter().all(|(c, e)| {
             let s = &slots[e.index as usize];
             // Active slots' cells were found inside above.
-            s.active && grid.flat(s.cell.map(|k| k as usize)) == *c as usize
+            s.active && flat(s.cell) == u64::from(*c)
         })
 }
 
@@ -253,6 +253,51 @@ impl<Q: EventQueue> Engine<Q> {
         self.kicks_uniform = state.kept_pairs.is_some();
     }
 
+    /// The cell shape and its counts, the neighbour lists and the cell
+    /// entries of `state` ([`Engine::import_state`]): `Err` with the reason
+    /// when they cannot belong to this engine.
+    fn check_neighbour_state(&self, state: &EngineState) -> Result<(), String> {
+        let n = state.slots.len();
+        // The grid entries name cells of the state's shape.
+        let shape = state.cell_shape;
+        let dims = if self.uses_cells() {
+            self.cell_dims(shape.tall_axis)
+                .map_err(|e| format!("a cell shape this scenario's grid cannot have: {e}"))?
+        } else if shape.tall_axis.is_some() {
+            return Err("a tall cell axis in lists mode".into());
+        } else {
+            self.cells.dims()
+        };
+        let counted = shape
+            .crossings
+            .iter()
+            .try_fold(0u64, |a, &c| a.checked_add(c));
+        if shape.collisions_at_choice > state.counters.pair_collisions
+            || counted.is_none_or(|c| c > state.counters.neighbour_updates)
+        {
+            return Err("cell-shape counts beyond the run's totals".into());
+        }
+        let cells = (dims[0] * dims[1] * dims[2]) as u64;
+        if state.lists.len() != n
+            || (self.uses_cells() && state.lists.iter().any(|l| !l.is_empty()))
+            || state.lists.iter().flatten().any(|&e| !entry_fits(e, n))
+            || state
+                .cells
+                .iter()
+                .any(|(c, e)| u64::from(*c) >= cells || e.index as usize >= n)
+            || !each_slot_once(state.cells.iter().map(|(_, e)| e.index), n)
+        {
+            return Err("neighbour lists or cells that do not fit the particle table or this scenario's grid".into());
+        }
+        if self.uses_cells() && !cells_agree(state, dims) {
+            return Err(
+                "particles whose cell is outside this scenario's grid or disagrees with the grid's entries"
+                    .into(),
+            );
+        }
+        Ok(())
+    }
+
     /// Replaces the state of an engine built from the same scenario with
     /// `state` ([`Engine::export_state`]); the configuration, domain and
     /// materials stay those of the build. `Err` with the reason when the
@@ -266,44 +311,7 @@ impl<Q: EventQueue> Engine<Q> {
             .to_lowercase());
         }
         let n = state.slots.len();
-        if state
-            .cell_shape
-            .tall_axis
-            .is_some_and(|a| !self.uses_cells() || a > 2)
-        {
-            return Err(
-                "a tall cell axis that this scenario's neighbour search cannot have".into(),
-            );
-        }
-        // The grid entries name cells of the state's shape.
-        if self.uses_cells() {
-            self.cells = CellGrid::new(
-                self.domain.lo,
-                self.domain.hi,
-                self.cell_min_width(state.cell_shape.tall_axis),
-                self.periodic_axes(),
-                n,
-            );
-        }
-        let dims = self.cells.dims();
-        let cells = (dims[0] * dims[1] * dims[2]) as u64;
-        if state.lists.len() != n
-            || (self.uses_cells() && state.lists.iter().any(|l| !l.is_empty()))
-            || state.lists.iter().flatten().any(|&e| !entry_fits(e, n))
-            || state
-                .cells
-                .iter()
-                .any(|(c, e)| u64::from(*c) >= cells || e.index as usize >= n)
-            || !each_slot_once(state.cells.iter().map(|(_, e)| e.index), n)
-        {
-            return Err("neighbour lists or cells that do not fit the particle table or this scenario's grid".into());
-        }
-        if self.uses_cells() && !cells_agree(&state, &self.cells) {
-            return Err(
-                "particles whose cell is outside this scenario's grid or disagrees with the grid's entries"
-                    .into(),
-            );
-        }
+        self.check_neighbour_state(&state)?;
         if let Some(kept) = &state.kept_pairs
             && (!self.keeps_pairs()
                 || kept.len() != n
@@ -390,6 +398,9 @@ impl<Q: EventQueue> Engine<Q> {
         }
         self.lists = lists;
         let occupied: Vec<(u32, u32)> = state.cells.iter().map(|(c, e)| (*c, e.index)).collect();
+        if self.uses_cells() {
+            self.reshape_cells(state.cell_shape.tall_axis, n);
+        }
         self.cells.refill(n, &occupied);
         self.queue = Q::with_capacity(n);
         self.rng = state.rng;
@@ -518,5 +529,79 @@ mod tests {
                 .kept_pairs
                 .is_none()
         );
+    }
+
+    /// A shape that would leave a periodic axis with fewer than 3 cells
+    /// (its scans would give partners across the face the wrong image),
+    /// an axis beyond 2 and counts beyond the run's totals are refused,
+    /// even in a file whose cells fit that shape, and a refused state
+    /// leaves the engine as it was.
+    #[test]
+    fn cell_shapes_a_grid_cannot_have_are_refused() {
+        let (size, r) = (0.012, 1e-3);
+        let domain = Domain {
+            lo: DVec3::ZERO,
+            hi: DVec3::splat(size),
+            axes: [AxisBoundary::Periodic; 3],
+            outlet: None,
+        };
+        let particles: Vec<NewParticle> = (0..27)
+            .map(|k| NewParticle {
+                pos: DVec3::new((k % 3) as f64, ((k / 3) % 3) as f64, (k / 9) as f64) * 0.004
+                    + DVec3::splat(0.002),
+                vel: DVec3::new(0.1 * ((k % 5) as f64 - 2.0), 0.05, 0.02),
+                omega: DVec3::ZERO,
+                radius: r,
+                material: 0,
+            })
+            .collect();
+        let config = EngineConfig {
+            neighbours: NeighbourSearch::Cells,
+            skin: 2e-4,
+            ..Default::default()
+        };
+        let params = ContactParams::ELASTIC_SMOOTH;
+        let mut engine = Engine::<CalendarQueue>::new(
+            domain,
+            MaterialTable::single(2500.0, params),
+            config,
+            &particles,
+        )
+        .expect("engine");
+        engine.advance(0.01);
+        engine.end_flow_step();
+        assert_eq!(engine.cells.dims(), [6, 6, 6]);
+        assert!(engine.set_tall_cell_axis(Some(0)).is_err(), "2 cells on x");
+        assert!(engine.set_tall_cell_axis(Some(3)).is_err(), "no axis 3");
+        let state = engine.export_state().expect("between flow steps");
+        // The same particles in cells three times wider along x.
+        let mut forged = state.clone();
+        forged.cell_shape.tall_axis = Some(0);
+        for s in forged.slots.iter_mut().filter(|s| s.active) {
+            s.cell[0] = (s.pos.x * 2.0 / size) as u64;
+        }
+        for (cell, e) in &mut forged.cells {
+            let c = forged.slots[e.index as usize].cell;
+            *cell = (c[0] + 2 * (c[1] + 6 * c[2])) as u32;
+        }
+        let e = engine.import_state(forged).expect_err("2 cells on x");
+        assert!(e.contains("fewer than 3 cells"), "{e}");
+        let mut axis = state.clone();
+        axis.cell_shape.tall_axis = Some(3);
+        assert!(engine.import_state(axis).is_err(), "no axis 3");
+        let mut counts = state.clone();
+        counts.cell_shape.collisions_at_choice = counts.counters.pair_collisions + 1;
+        assert!(engine.import_state(counts).is_err(), "collisions ahead");
+        let mut crossings = state.clone();
+        crossings.cell_shape.crossings = [u64::MAX, 1, 0];
+        assert!(
+            engine.import_state(crossings).is_err(),
+            "crossings overflow"
+        );
+        // The engine runs on from where it was.
+        assert_eq!(engine.cells.dims(), [6, 6, 6]);
+        engine.advance(0.01);
+        engine.end_flow_step();
+        engine.import_state(state).expect("its own state");
     }
 }
