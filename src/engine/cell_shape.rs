@@ -102,17 +102,21 @@ impl<Q: EventQueue> Engine<Q> {
     }
 
     /// Minimum cell widths (m) of cells mode with `tall_axis` stretched:
-    /// the largest diameter, and [`TALL_FACTOR`] square cells along the
-    /// tall axis.
+    /// the square grid's own cells (the largest diameter, or wider where
+    /// [`crate::neighbours::MAX_CELLS`] widened them), [`TALL_FACTOR`] of
+    /// them along the tall axis, so that the other axes keep their cells.
     pub(super) fn cell_min_width(&self, tall_axis: Option<u8>) -> DVec3 {
-        let mut width = DVec3::splat(2.0 * self.r_max);
-        if let Some(axis) = tall_axis {
-            let axis = axis as usize;
-            let square = self.square_dims()[axis] as f64;
-            // Shaved by round-off so that the division in `dims_for` gives
-            // exactly a third of the square cells.
-            width[axis] = TALL_FACTOR * self.domain.size()[axis] / square * (1.0 - 1e-12);
-        }
+        let diameter = DVec3::splat(2.0 * self.r_max);
+        let Some(axis) = tall_axis else {
+            return diameter;
+        };
+        let (square, size) = (self.square_dims(), self.domain.size());
+        // Shaved by round-off so that the division in `dims_for` gives
+        // back the square counts, and a third of them along the tall axis.
+        let mut width = DVec3::from_array(std::array::from_fn(|a| {
+            size[a] / square[a] as f64 * (1.0 - 1e-12)
+        }));
+        width[axis as usize] *= TALL_FACTOR;
         width
     }
 
@@ -212,6 +216,46 @@ impl<Q: EventQueue> Engine<Q> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::collision::ContactParams;
+    use crate::domain::Domain;
+    use crate::materials::MaterialTable;
+    use crate::particles::NewParticle;
+    use crate::queue::CalendarQueue;
+
+    /// Where the cell count cap widens the square cells, tall cells are
+    /// three of those along their axis and the other axes keep theirs:
+    /// cutting one axis must not make the others finer than square.
+    #[test]
+    fn tall_cells_keep_the_square_cells_of_the_other_axes() {
+        let domain = Domain {
+            lo: DVec3::ZERO,
+            hi: DVec3::splat(0.2),
+            axes: [AxisBoundary::Walls; 3],
+            outlet: None,
+        };
+        let particle = NewParticle {
+            pos: DVec3::splat(0.1),
+            vel: DVec3::ZERO,
+            omega: DVec3::ZERO,
+            radius: 1e-4,
+            material: 0,
+        };
+        let config = super::super::EngineConfig {
+            neighbours: NeighbourSearch::Cells,
+            skin: 2e-5,
+            ..Default::default()
+        };
+        let table = MaterialTable::single(2500.0, ContactParams::ELASTIC_SMOOTH);
+        let mut engine =
+            Engine::<CalendarQueue>::new(domain, table, config, &[particle]).expect("engine");
+        // 1000 diameters a side, capped to 161 cells an axis.
+        let square = engine.cells.dims();
+        assert_eq!(square, [161; 3]);
+        engine.set_tall_cell_axis(Some(1)).expect("walls");
+        assert_eq!(engine.cells.dims(), [161, 53, 161]);
+        engine.set_tall_cell_axis(None).expect("square");
+        assert_eq!(engine.cells.dims(), square);
+    }
 
     #[test]
     fn tall_cells_follow_streaming_and_square_cells_follow_collisions() {
