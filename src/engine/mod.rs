@@ -481,14 +481,13 @@ impl<Q: EventQueue> Engine<Q> {
             is_soft: Vec::with_capacity(n),
             turned_soft: Vec::new(),
         };
-        if engine.config.neighbours == NeighbourSearch::Cells {
-            let dims = engine.cells.dims();
-            if (0..3).any(|axis| periodic[axis] && dims[axis] < 3) {
-                return Err(EngineError::Config(
-                    "cell search needs at least 3 cells (3 largest diameters) along every periodic axis; use lists"
-                        .into(),
-                ));
-            }
+        // The square grid passes the shape check of every grid
+        // ([`Engine::cell_dims`]: 3 cells on each periodic axis).
+        if engine.uses_cells() && engine.cell_dims(None).is_err() {
+            return Err(EngineError::Config(
+                "cell search needs at least 3 cells (3 largest diameters) along every periodic axis; use lists"
+                    .into(),
+            ));
         }
         for (index, p) in particles.enumerate() {
             engine.check_particle(index, &p, true)?;

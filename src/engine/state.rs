@@ -430,18 +430,19 @@ mod tests {
     use crate::particles::NewParticle;
     use crate::queue::CalendarQueue;
 
-    /// A cells-mode box after a flow step and a uniform kick, exported.
-    fn exported() -> (Engine<CalendarQueue>, super::EngineState) {
+    /// A cells-mode periodic box `size` wide (m) holding 27 particles of
+    /// 1 mm radius on a cubic lattice of `spacing` (m), moving.
+    fn lattice_box(size: f64, spacing: f64) -> Engine<CalendarQueue> {
         let domain = Domain {
             lo: DVec3::ZERO,
-            hi: DVec3::splat(0.02),
+            hi: DVec3::splat(size),
             axes: [AxisBoundary::Periodic; 3],
             outlet: None,
         };
         let particles: Vec<NewParticle> = (0..27)
             .map(|k| NewParticle {
-                pos: DVec3::new((k % 3) as f64, ((k / 3) % 3) as f64, (k / 9) as f64) * 0.006
-                    + DVec3::splat(0.003),
+                pos: DVec3::new((k % 3) as f64, ((k / 3) % 3) as f64, (k / 9) as f64) * spacing
+                    + DVec3::splat(0.5 * spacing),
                 vel: DVec3::new(
                     0.1 * ((k % 5) as f64 - 2.0),
                     0.05 * ((k % 3) as f64 - 1.0),
@@ -458,13 +459,18 @@ mod tests {
             ..Default::default()
         };
         let params = ContactParams::ELASTIC_SMOOTH;
-        let mut engine = Engine::<CalendarQueue>::new(
+        Engine::<CalendarQueue>::new(
             domain,
             MaterialTable::single(2500.0, params),
             config,
             &particles,
         )
-        .expect("engine");
+        .expect("engine")
+    }
+
+    /// A cells-mode box after a flow step and a uniform kick, exported.
+    fn exported() -> (Engine<CalendarQueue>, super::EngineState) {
+        let mut engine = lattice_box(0.02, 0.006);
         for _ in 0..3 {
             engine.advance(0.01);
             engine.end_flow_step();
@@ -538,36 +544,8 @@ mod tests {
     /// leaves the engine as it was.
     #[test]
     fn cell_shapes_a_grid_cannot_have_are_refused() {
-        let (size, r) = (0.012, 1e-3);
-        let domain = Domain {
-            lo: DVec3::ZERO,
-            hi: DVec3::splat(size),
-            axes: [AxisBoundary::Periodic; 3],
-            outlet: None,
-        };
-        let particles: Vec<NewParticle> = (0..27)
-            .map(|k| NewParticle {
-                pos: DVec3::new((k % 3) as f64, ((k / 3) % 3) as f64, (k / 9) as f64) * 0.004
-                    + DVec3::splat(0.002),
-                vel: DVec3::new(0.1 * ((k % 5) as f64 - 2.0), 0.05, 0.02),
-                omega: DVec3::ZERO,
-                radius: r,
-                material: 0,
-            })
-            .collect();
-        let config = EngineConfig {
-            neighbours: NeighbourSearch::Cells,
-            skin: 2e-4,
-            ..Default::default()
-        };
-        let params = ContactParams::ELASTIC_SMOOTH;
-        let mut engine = Engine::<CalendarQueue>::new(
-            domain,
-            MaterialTable::single(2500.0, params),
-            config,
-            &particles,
-        )
-        .expect("engine");
+        let size = 0.012;
+        let mut engine = lattice_box(size, 0.004);
         engine.advance(0.01);
         engine.end_flow_step();
         assert_eq!(engine.cells.dims(), [6, 6, 6]);
