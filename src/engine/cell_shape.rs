@@ -1,19 +1,20 @@
 //! Cells mode: cells stretched along the axis most crossings are on.
 //!
 //! In a riser the particles stream along the flow: 82 % of the cell
-//! crossings of the ideal riser are vertical, 36 for each pair collision
-//! (results/benchmarks.md, eighteenth session). Cells three times taller
-//! along such an axis cut those crossing events threefold, while every
-//! partner search scans cells holding three times as many particles. That
-//! pays where crossings outnumber collisions many times over (the ideal
-//! riser) and costs where collisions dominate (the non-ideal riser's
-//! clusters, 3.4 crossings a collision). At each flow-step end the engine
-//! counts both since it last chose, and stretches ([`TALL_FACTOR`]) or
-//! squares its cells with hysteresis between [`TALL_ABOVE`] and
-//! [`SQUARE_BELOW`]. The shape changes the round-off of event times (so
-//! the bits of a run, not its physics): a run stays deterministic
-//! whatever the thread count, and a restart file carries the shape and
-//! its counts.
+//! crossings of the ideal riser are vertical, about 70 for each pair
+//! collision in cells a diameter tall (36 in the cells two diameters tall
+//! it was measured in: results/benchmarks.md, eighteenth session). Cells
+//! three times taller along such an axis cut those crossing events
+//! threefold, while every partner search scans cells holding three times
+//! as many particles. That pays where crossings outnumber collisions many
+//! times over (the ideal riser) and costs where collisions dominate (the
+//! non-ideal riser's clusters, 3.4 crossings a collision in those cells).
+//! At each flow-step end the engine counts both since it last chose, and
+//! stretches ([`TALL_FACTOR`]) or squares its cells with hysteresis
+//! between [`TALL_ABOVE`] and [`SQUARE_BELOW`]. The shape changes the
+//! round-off of event times (so the bits of a run, not its physics): a run
+//! stays deterministic whatever the thread count, and a restart file
+//! carries the shape and its counts.
 
 use glam::DVec3;
 
@@ -27,12 +28,14 @@ pub const TALL_FACTOR: f64 = 3.0;
 
 /// Square-equivalent crossings along the dominant axis per pair collision
 /// above which cells turn tall, and below which tall cells turn square
-/// again. Measured: at 36 (ideal riser) tall cells save 10–15 %, at 3.4
-/// (non-ideal riser) they cost 6–15 %, and from 7.7 to 13.2 (smooth
-/// collisions in dissolving strands) the two cost the same within noise
-/// (results/benchmarks.md, eighteenth session).
-pub const TALL_ABOVE: f64 = 16.0;
-pub const SQUARE_BELOW: f64 = 8.0;
+/// again. Measured in the riser, whose square cells were then two
+/// diameters tall (so these counts are about twice those quoted there):
+/// at 36 (ideal riser) tall cells save 10–15 %, at 3.4 (non-ideal riser)
+/// they cost 6–15 %, and from 7.7 to 13.2 (smooth collisions in dissolving
+/// strands) the two cost the same within noise (results/benchmarks.md,
+/// eighteenth and nineteenth sessions).
+pub const TALL_ABOVE: f64 = 32.0;
+pub const SQUARE_BELOW: f64 = 16.0;
 
 /// The dominant axis carries at least this many times the crossings of
 /// every other axis (square-equivalent): streaming, not a random walk.
@@ -259,17 +262,18 @@ mod tests {
 
     #[test]
     fn tall_cells_follow_streaming_and_square_cells_follow_collisions() {
-        // The ideal riser's window: 26 crossings per collision vertically.
+        // The ideal riser's window: 51 crossings per collision vertically
+        // (cells a diameter tall).
         assert_eq!(
-            choose_tall_axis(None, [4.8e6, 2.1e7, 0.0], 800_000),
+            choose_tall_axis(None, [4.8e6, 4.1e7, 0.0], 800_000),
             Some(Some(1))
         );
         // Inside the hysteresis band nothing changes, either way.
-        assert_eq!(choose_tall_axis(Some(1), [1e5, 1e6, 0.0], 100_000), None);
-        assert_eq!(choose_tall_axis(None, [1e5, 1e6, 0.0], 100_000), None);
-        // The non-ideal riser: 3.4 crossings per collision.
+        assert_eq!(choose_tall_axis(Some(1), [1e5, 2e6, 0.0], 100_000), None);
+        assert_eq!(choose_tall_axis(None, [1e5, 2e6, 0.0], 100_000), None);
+        // The non-ideal riser: 6.7 crossings per collision.
         assert_eq!(
-            choose_tall_axis(Some(1), [1.2e6, 5.6e6, 0.0], 1_640_000),
+            choose_tall_axis(Some(1), [1.2e6, 1.1e7, 0.0], 1_640_000),
             Some(None)
         );
         // No streaming axis (a granular gas): square, however few the

@@ -190,7 +190,6 @@ fn memory_estimate(s: &Scenario, p: Particles) -> MemoryEstimate {
         DVec3::splat(cell_width),
         periodic,
     );
-    let cells = dims.iter().product::<usize>();
     let slots = p.count.min(usize::MAX as f64 / 2.0) as usize;
     let mut m = MemoryEstimate {
         particles: p.count * BYTES_PER_PARTICLE,
@@ -199,7 +198,7 @@ fn memory_estimate(s: &Scenario, p: Particles) -> MemoryEstimate {
         } else {
             0.0
         },
-        neighbour_cells: crate::neighbours::grid_bytes_bound(cells, slots) as f64,
+        neighbour_cells: crate::neighbours::grid_bytes_bound(dims, slots) as f64,
         ..Default::default()
     };
     if let Some(g) = &s.gas {
