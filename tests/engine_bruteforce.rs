@@ -293,10 +293,10 @@ fn run_kicked<Q: EventQueue>(
                 engine.end_flow_step();
                 steps += 1;
                 if neighbours == NeighbourSearch::Cells {
-                    // Cells three times taller along x, then y, then
-                    // square again, step by step: the rebuilt grid must
-                    // miss nothing (a periodic axis left with fewer than 3
-                    // cells refuses the shape and keeps the last).
+                    // Cells tall along x, then y, then square again, step
+                    // by step: the rebuilt grid must miss nothing. Tall
+                    // cells along a periodic axis of 9 square cells are 3
+                    // of them tall, so that it keeps 3 cells.
                     let shapes = [None, Some(0), Some(1)];
                     let _ = engine.set_tall_cell_axis(shapes[steps as usize % 3]);
                     tall_steps += u64::from(engine.tall_cell_axis().is_some());

@@ -4,9 +4,9 @@
 //! crossings of the ideal riser are vertical, about 70 for each pair
 //! collision in cells a diameter tall (36 in the cells two diameters tall
 //! it was measured in: results/benchmarks.md, eighteenth session). Cells
-//! three times taller along such an axis cut those crossing events
-//! threefold, while every partner search scans cells holding three times
-//! as many particles. That pays where crossings outnumber collisions many
+//! [`TALL_FACTOR`] times taller along such an axis cut those crossing
+//! events as many times, while every partner search scans cells holding
+//! as many times the particles. That pays where crossings outnumber collisions many
 //! times over (the ideal riser) and costs where collisions dominate (the
 //! non-ideal riser's clusters, 3.4 crossings a collision in those cells).
 //! At each flow-step end the engine counts both since it last chose, and
@@ -23,8 +23,15 @@ use crate::domain::AxisBoundary;
 use crate::neighbours::CellGrid;
 use crate::queue::EventQueue;
 
-/// Cell height along the stretched axis, in cells of the square grid.
-pub const TALL_FACTOR: f64 = 3.0;
+/// Cell height along the stretched axis, in cells of the square grid (a
+/// periodic axis keeps at least 3 cells: [`Engine::tall_factor`]). In the
+/// ideal riser, tall cells of 6 square cells ran 5 % faster than of 3
+/// (results/benchmarks.md, nineteenth session).
+pub const TALL_FACTOR: usize = 6;
+
+/// The shortest tall cells, in cells of the square grid: below, a periodic
+/// axis is too short to turn tall.
+const MIN_TALL_FACTOR: usize = 2;
 
 /// Square-equivalent crossings along the dominant axis per pair collision
 /// above which cells turn tall, and below which tall cells turn square
@@ -115,12 +122,23 @@ impl<Q: EventQueue> Engine<Q> {
         };
         let (square, size) = (self.square_dims(), self.domain.size());
         // Shaved by round-off so that the division in `dims_for` gives
-        // back the square counts, and a third of them along the tall axis.
+        // back the square counts, and a k-th of them along the tall axis.
         let mut width = DVec3::from_array(std::array::from_fn(|a| {
             size[a] / square[a] as f64 * (1.0 - 1e-12)
         }));
-        width[axis as usize] *= TALL_FACTOR;
+        width[axis as usize] *= self.tall_factor(axis as usize, square) as f64;
         width
+    }
+
+    /// Tall cells along `axis`, in cells of the `square` grid:
+    /// [`TALL_FACTOR`], or along a periodic axis at most a third of its
+    /// square cells, so that it keeps 3 (a scan then finds every image).
+    fn tall_factor(&self, axis: usize, square: [usize; 3]) -> usize {
+        if self.periodic_axes()[axis] {
+            TALL_FACTOR.min(square[axis] / 3)
+        } else {
+            TALL_FACTOR
+        }
     }
 
     pub(super) fn periodic_axes(&self) -> [bool; 3] {
@@ -163,8 +181,10 @@ impl<Q: EventQueue> Engine<Q> {
     }
 
     /// Cells per axis of cells mode with `tall_axis` stretched. `Err`
-    /// outside cells mode, for an axis beyond 2, or where a periodic axis
-    /// would keep fewer than 3 cells (a scan would then miss images).
+    /// outside cells mode, for an axis beyond 2, along a periodic axis too
+    /// short for cells [`MIN_TALL_FACTOR`] square cells tall, or where a
+    /// periodic axis would keep fewer than 3 cells (a scan would then miss
+    /// images).
     pub(super) fn cell_dims(&self, tall_axis: Option<u8>) -> Result<[usize; 3], EngineError> {
         if self.config.neighbours != NeighbourSearch::Cells {
             return Err(EngineError::Config(
@@ -173,6 +193,16 @@ impl<Q: EventQueue> Engine<Q> {
         }
         if tall_axis.is_some_and(|a| a > 2) {
             return Err(EngineError::Config(format!("no axis {tall_axis:?}")));
+        }
+        if let Some(axis) = tall_axis.map(usize::from) {
+            let square = self.square_dims();
+            if self.tall_factor(axis, square) < MIN_TALL_FACTOR {
+                return Err(EngineError::Config(format!(
+                    "tall cells along the periodic axis {axis} need at least {} square cells on it ({} here)",
+                    3 * MIN_TALL_FACTOR,
+                    square[axis]
+                )));
+            }
         }
         let periodic = self.periodic_axes();
         let dims = CellGrid::dims_for(self.domain.size(), self.cell_min_width(tall_axis), periodic);
@@ -255,7 +285,7 @@ mod tests {
         let square = engine.cells.dims();
         assert_eq!(square, [161; 3]);
         engine.set_tall_cell_axis(Some(1)).expect("walls");
-        assert_eq!(engine.cells.dims(), [161, 53, 161]);
+        assert_eq!(engine.cells.dims(), [161, 26, 161]);
         engine.set_tall_cell_axis(None).expect("square");
         assert_eq!(engine.cells.dims(), square);
     }

@@ -544,15 +544,15 @@ mod tests {
     /// leaves the engine as it was.
     #[test]
     fn cell_shapes_a_grid_cannot_have_are_refused() {
-        let size = 0.012;
-        let mut engine = lattice_box(size, 0.004);
+        let size = 0.010;
+        let mut engine = lattice_box(size, 0.0033);
         engine.advance(0.01);
         engine.end_flow_step();
-        assert_eq!(engine.cells.dims(), [6, 6, 6]);
-        assert!(engine.set_tall_cell_axis(Some(0)).is_err(), "2 cells on x");
+        assert_eq!(engine.cells.dims(), [5, 5, 5]);
+        assert!(engine.set_tall_cell_axis(Some(0)).is_err(), "5 cells on x");
         assert!(engine.set_tall_cell_axis(Some(3)).is_err(), "no axis 3");
         let state = engine.export_state().expect("between flow steps");
-        // The same particles in cells three times wider along x.
+        // The same particles in cells two and a half times wider along x.
         let mut forged = state.clone();
         forged.cell_shape.tall_axis = Some(0);
         for s in forged.slots.iter_mut().filter(|s| s.active) {
@@ -560,10 +560,10 @@ mod tests {
         }
         for (cell, e) in &mut forged.cells {
             let c = forged.slots[e.index as usize].cell;
-            *cell = (c[0] + 2 * (c[1] + 6 * c[2])) as u32;
+            *cell = (c[0] + 2 * (c[1] + 5 * c[2])) as u32;
         }
-        let e = engine.import_state(forged).expect_err("2 cells on x");
-        assert!(e.contains("fewer than 3 cells"), "{e}");
+        let e = engine.import_state(forged).expect_err("5 cells on x");
+        assert!(e.contains("at least 6 square cells"), "{e}");
         let mut axis = state.clone();
         axis.cell_shape.tall_axis = Some(3);
         assert!(engine.import_state(axis).is_err(), "no axis 3");
@@ -577,7 +577,7 @@ mod tests {
             "crossings overflow"
         );
         // The engine runs on from where it was.
-        assert_eq!(engine.cells.dims(), [6, 6, 6]);
+        assert_eq!(engine.cells.dims(), [5, 5, 5]);
         engine.advance(0.01);
         engine.end_flow_step();
         engine.import_state(state).expect("its own state");

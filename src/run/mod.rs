@@ -135,8 +135,8 @@ pub struct Summary {
     pub flow_steps: u64,
     pub queue: QueueKind,
     pub neighbours: NeighbourSearch,
-    /// Cells mode: the axis along which the cells were three times taller
-    /// at the end (`[engine] cell_shape`), if any.
+    /// Cells mode: the axis along which the cells were taller (six square
+    /// cells, fewer on a short periodic axis) at the end (`[engine] cell_shape`), if any.
     pub tall_cell_axis: Option<u8>,
     /// Neighbour-shell thickness used (m).
     pub skin: f64,
