@@ -99,9 +99,14 @@ impl Spins {
         self.set(self.slots - 1, omega);
     }
 
-    /// The stored values (`None` while all are zero), to renumber them.
-    pub(super) fn stored_mut(&mut self) -> Option<&mut Vec<DVec3>> {
-        (!self.values.is_empty()).then_some(&mut self.values)
+    /// Renumbers the slots with `permute` (applied to the stored values,
+    /// if any), which leaves `slots` of them (free slots dropped).
+    pub(super) fn renumber(&mut self, slots: usize, permute: impl FnOnce(&mut Vec<DVec3>)) {
+        if !self.values.is_empty() {
+            permute(&mut self.values);
+            assert_eq!(self.values.len(), slots, "one spin per slot");
+        }
+        self.slots = slots;
     }
 
     pub(super) fn heap_bytes(&self) -> usize {
@@ -200,9 +205,9 @@ impl<Q: EventQueue> Engine<Q> {
             }
         }
         permute(&mut self.kin, &order);
-        if let Some(spins) = self.spins.stored_mut() {
-            permute(spins, &order);
-        }
+        // The spins' slot count too: a particle added later takes slot n.
+        self.spins
+            .renumber(order.len(), |spins| permute(spins, &order));
         permute(&mut self.inv_mass, &order);
         permute(&mut self.material, &order);
         permute(&mut self.id, &order);
@@ -456,6 +461,55 @@ impl PairCandidate {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::collision::ContactParams;
+    use crate::domain::{AxisBoundary, Domain};
+    use crate::materials::MaterialTable;
+    use crate::particles::NewParticle;
+    use crate::queue::CalendarQueue;
+
+    /// Renumbering drops free slots; a particle added afterwards must get
+    /// its own spin back. The spins' slot count used to stay at the old
+    /// count, so the new particle's spin went to a slot beyond the others
+    /// (read back as zero, or a panic once spins were stored).
+    #[test]
+    fn a_particle_added_after_renumbering_keeps_its_spin() {
+        let domain = Domain {
+            lo: DVec3::ZERO,
+            hi: DVec3::splat(10.0),
+            axes: [AxisBoundary::Walls; 3],
+            outlet: None,
+        };
+        let at = |x: f64| NewParticle {
+            pos: DVec3::new(x, 5.0, 5.0),
+            vel: DVec3::X,
+            omega: DVec3::ZERO,
+            radius: 0.5,
+            material: 0,
+        };
+        let particles: Vec<NewParticle> = (0..4).map(|k| at(1.5 + 2.0 * k as f64)).collect();
+        let table = MaterialTable::single(2500.0, ContactParams::ELASTIC_SMOOTH);
+        let config = super::super::EngineConfig {
+            skin: 0.1,
+            ..Default::default()
+        };
+        let mut engine =
+            Engine::<CalendarQueue>::new(domain, table, config, &particles).expect("engine");
+        engine.advance(0.1);
+        engine.end_flow_step();
+        engine.remove(1);
+        engine.reorder_by_cell();
+        let omega = DVec3::new(0.0, 0.0, 3.0);
+        let slot = engine.allocate_slot(&NewParticle { omega, ..at(3.5) });
+        assert_eq!(slot, 3, "after the three kept slots");
+        assert_eq!(engine.spins.get(slot), omega);
+        // Once spins are stored, the next one too (this used to panic).
+        let slot = engine.allocate_slot(&NewParticle {
+            omega: -omega,
+            ..at(1.0)
+        });
+        assert_eq!((slot, engine.spins.get(slot)), (4, -omega));
+        assert_eq!(engine.spins.get(0), DVec3::ZERO);
+    }
 
     #[test]
     fn spins_are_stored_once_one_is_not_plus_zero() {
