@@ -6,9 +6,10 @@
 //! it was measured in: results/benchmarks.md, eighteenth session). Cells
 //! [`TALL_FACTOR`] times taller along such an axis cut those crossing
 //! events as many times, while every partner search scans cells holding
-//! as many times the particles. That pays where crossings outnumber collisions many
-//! times over (the ideal riser) and costs where collisions dominate (the
-//! non-ideal riser's clusters, 3.4 crossings a collision in those cells).
+//! as many times the particles. That pays where crossings outnumber
+//! collisions many times over (the ideal riser) and costs where collisions
+//! dominate (the non-ideal riser's clusters, 3.4 crossings a collision in
+//! those cells).
 //! At each flow-step end the engine counts both since it last chose, and
 //! stretches ([`TALL_FACTOR`]) or squares its cells with hysteresis
 //! between [`TALL_ABOVE`] and [`SQUARE_BELOW`]. The shape changes the
@@ -169,8 +170,9 @@ impl<Q: EventQueue> Engine<Q> {
         self.cell_shape.collisions_at_choice = self.counters.pair_collisions;
         if let Some(tall_axis) = choose_tall_axis(self.cell_shape.tall_axis, crossings, collisions)
         {
-            // A shape that leaves a periodic axis with fewer than 3 cells
-            // is refused: the cells stay as they are.
+            // A shape this grid cannot have ([`Engine::cell_dims`]: a
+            // periodic axis too short for tall cells) is refused: the cells
+            // stay as they are.
             let _ = self.set_tall_cell_axis(tall_axis);
         }
     }
@@ -248,24 +250,16 @@ impl<Q: EventQueue> Engine<Q> {
 
 #[cfg(test)]
 mod tests {
+    use super::super::tests::walled_cube;
     use super::*;
     use crate::collision::ContactParams;
-    use crate::domain::Domain;
-    use crate::materials::MaterialTable;
     use crate::particles::NewParticle;
-    use crate::queue::CalendarQueue;
 
     /// Where the cell count cap widens the square cells, tall cells are
-    /// three of those along their axis and the other axes keep theirs:
-    /// cutting one axis must not make the others finer than square.
+    /// [`TALL_FACTOR`] of those along their axis and the other axes keep
+    /// theirs: cutting one axis must not make the others finer than square.
     #[test]
     fn tall_cells_keep_the_square_cells_of_the_other_axes() {
-        let domain = Domain {
-            lo: DVec3::ZERO,
-            hi: DVec3::splat(0.2),
-            axes: [AxisBoundary::Walls; 3],
-            outlet: None,
-        };
         let particle = NewParticle {
             pos: DVec3::splat(0.1),
             vel: DVec3::ZERO,
@@ -278,9 +272,7 @@ mod tests {
             skin: 2e-5,
             ..Default::default()
         };
-        let table = MaterialTable::single(2500.0, ContactParams::ELASTIC_SMOOTH);
-        let mut engine =
-            Engine::<CalendarQueue>::new(domain, table, config, &[particle]).expect("engine");
+        let mut engine = walled_cube(0.2, ContactParams::ELASTIC_SMOOTH, config, &[particle]);
         // 1000 diameters a side, capped to 161 cells an axis.
         let square = engine.cells.dims();
         assert_eq!(square, [161; 3]);

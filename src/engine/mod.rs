@@ -859,17 +859,30 @@ mod tests {
     use crate::domain::AxisBoundary;
     use crate::queue::CalendarQueue;
 
+    /// An engine in a cube `size` (m) wide with walls on every face and one
+    /// material (2500 kg/m³, contact `params`): the box of the engine's
+    /// unit tests.
+    pub(super) fn walled_cube(
+        size: f64,
+        params: ContactParams,
+        config: EngineConfig,
+        particles: &[NewParticle],
+    ) -> Engine<CalendarQueue> {
+        let domain = Domain {
+            lo: DVec3::ZERO,
+            hi: DVec3::splat(size),
+            axes: [AxisBoundary::Walls; 3],
+            outlet: None,
+        };
+        let table = MaterialTable::single(2500.0, params);
+        Engine::<CalendarQueue>::new(domain, table, config, particles).expect("engine")
+    }
+
     /// A pair event whose pair no longer approaches when it fires (what
     /// round-off can do at a grazing contact) is re-predicted, never
     /// collided.
     #[test]
     fn a_pair_receding_at_its_contact_is_re_predicted_not_collided() {
-        let domain = Domain {
-            lo: DVec3::ZERO,
-            hi: DVec3::splat(0.1),
-            axes: [AxisBoundary::Walls; 3],
-            outlet: None,
-        };
         let sphere = |x: f64, vx: f64| NewParticle {
             pos: DVec3::new(x, 0.05, 0.05),
             vel: DVec3::new(vx, 0.0, 0.0),
@@ -887,13 +900,7 @@ mod tests {
             ..Default::default()
         };
         let particles = [sphere(0.050, 0.1), sphere(0.053, -0.1)];
-        let mut engine = Engine::<CalendarQueue>::new(
-            domain,
-            MaterialTable::single(2500.0, params),
-            config,
-            &particles,
-        )
-        .expect("engine");
+        let mut engine = walled_cube(0.1, params, config, &particles);
         engine.ensure_predicted();
         assert_eq!(engine.event_state[0].scheduled.kind, EventKind::Pair);
         // Reverse both behind the predictions' back (counters unchanged).

@@ -537,9 +537,9 @@ mod tests {
         );
     }
 
-    /// A shape that would leave a periodic axis with fewer than 3 cells
-    /// (its scans would give partners across the face the wrong image),
-    /// an axis beyond 2 and counts beyond the run's totals are refused,
+    /// Tall cells along a periodic axis too short to keep 3 of them (its
+    /// scans would give partners across the face the wrong image), an
+    /// axis beyond 2 and counts beyond the run's totals are refused,
     /// even in a file whose cells fit that shape, and a refused state
     /// leaves the engine as it was.
     #[test]

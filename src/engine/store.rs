@@ -460,12 +460,10 @@ impl PairCandidate {
 
 #[cfg(test)]
 mod tests {
+    use super::super::tests::walled_cube;
     use super::*;
     use crate::collision::ContactParams;
-    use crate::domain::{AxisBoundary, Domain};
-    use crate::materials::MaterialTable;
     use crate::particles::NewParticle;
-    use crate::queue::CalendarQueue;
 
     /// Renumbering drops free slots; a particle added afterwards must get
     /// its own spin back. The spins' slot count used to stay at the old
@@ -473,12 +471,6 @@ mod tests {
     /// (read back as zero, or a panic once spins were stored).
     #[test]
     fn a_particle_added_after_renumbering_keeps_its_spin() {
-        let domain = Domain {
-            lo: DVec3::ZERO,
-            hi: DVec3::splat(10.0),
-            axes: [AxisBoundary::Walls; 3],
-            outlet: None,
-        };
         let at = |x: f64| NewParticle {
             pos: DVec3::new(x, 5.0, 5.0),
             vel: DVec3::X,
@@ -487,13 +479,11 @@ mod tests {
             material: 0,
         };
         let particles: Vec<NewParticle> = (0..4).map(|k| at(1.5 + 2.0 * k as f64)).collect();
-        let table = MaterialTable::single(2500.0, ContactParams::ELASTIC_SMOOTH);
         let config = super::super::EngineConfig {
             skin: 0.1,
             ..Default::default()
         };
-        let mut engine =
-            Engine::<CalendarQueue>::new(domain, table, config, &particles).expect("engine");
+        let mut engine = walled_cube(10.0, ContactParams::ELASTIC_SMOOTH, config, &particles);
         engine.advance(0.1);
         engine.end_flow_step();
         engine.remove(1);
