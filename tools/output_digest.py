@@ -57,6 +57,12 @@ def digest(path: pathlib.Path) -> str:
     data = path.read_bytes()
     if path.name == "summary.json":
         data = json.dumps(strip_timing(json.loads(data)), sort_keys=True).encode()
+    elif path.name == "run.json":
+        # The log's path lies in this run's temporary directory: its name only.
+        manifest = json.loads(data)
+        if manifest.get("log"):
+            manifest["log"] = pathlib.Path(manifest["log"]).name
+        data = json.dumps(manifest, sort_keys=True).encode()
     return hashlib.sha256(data).hexdigest()
 
 

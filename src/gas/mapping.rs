@@ -99,22 +99,23 @@ pub fn hoomans_3d_to_2d(eps_s_3d: f64) -> f64 {
     (eps_s_3d.max(0.0) / 0.857_382_758_104_991_8).powf(2.0 / 3.0)
 }
 
-/// 1D overlap fractions along one axis. `offset` is the index along the axis
-/// already multiplied by the stride of the axis in the linear index. Offsets
-/// are 32-bit (80 bytes a value): the coupling keeps six of these per
-/// particle and reads them three times per flow step.
+/// 1D overlap fractions along one axis, at most `S` entries. `offset` is
+/// the index along the axis already multiplied by the stride of the axis in
+/// the linear index. Offsets are 32-bit: with `S` = [`MAX_SPAN`] a value is
+/// 80 bytes; the coupling keeps six per particle, with `S` = 2 wherever no
+/// particle's cube is wider than a cell (32 bytes each).
 #[derive(Clone, Copy, Debug)]
-pub struct AxisWeights {
+pub struct AxisWeights<const S: usize = MAX_SPAN> {
     len: usize,
-    offset: [u32; MAX_SPAN],
-    weight: [f64; MAX_SPAN],
+    offset: [u32; S],
+    weight: [f64; S],
 }
 
-impl AxisWeights {
-    pub const EMPTY: AxisWeights = AxisWeights {
+impl<const S: usize> AxisWeights<S> {
+    pub const EMPTY: AxisWeights<S> = AxisWeights {
         len: 0,
-        offset: [0; MAX_SPAN],
-        weight: [0.0; MAX_SPAN],
+        offset: [0; S],
+        weight: [0.0; S],
     };
 
     #[inline]
@@ -127,9 +128,10 @@ impl AxisWeights {
     #[inline]
     fn push(&mut self, offset: usize, weight: f64) {
         assert!(
-            self.len < MAX_SPAN,
-            "a particle's mapping cube overlaps more than {MAX_SPAN} gas cells along one axis: \
-             the gas cells are too small for the particle (scenario validation refuses this)"
+            self.len < S,
+            "a particle's mapping cube overlaps more than {S} gas cells along one axis: \
+             the gas cells are too small for the particle (scenario validation refuses this \
+             for {MAX_SPAN}; the coupling chooses 2 only where every cube fits a cell)"
         );
         self.offset[self.len] = u32::try_from(offset)
             .expect("a gas grid index beyond 2^32 (scenario validation allows at most 5e7 cells)");
@@ -223,8 +225,8 @@ fn floor_inline(x: f64) -> f64 {
 /// [`axis_overlap`] written into `out` (cleared first), avoiding a copy
 /// of the weights in hot loops.
 #[inline(always)]
-fn axis_overlap_into(
-    out: &mut AxisWeights,
+fn axis_overlap_into<const S: usize>(
+    out: &mut AxisWeights<S>,
     t: f64,
     half: f64,
     n: usize,
@@ -488,9 +490,9 @@ impl ExactSizeIterator for WeightsIter {}
 /// factors over the axes give [`cell_weights`] and [`face_weights`]. Both
 /// share the particle's cell coordinate and half width in cells.
 #[inline(always)]
-pub fn axis_weights_into(
-    cells: &mut AxisWeights,
-    faces: &mut AxisWeights,
+pub fn axis_weights_into<const S: usize>(
+    cells: &mut AxisWeights<S>,
+    faces: &mut AxisWeights<S>,
     grid: &GridGeometry,
     axis: usize,
     pos: DVec3,
