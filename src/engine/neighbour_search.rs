@@ -54,27 +54,32 @@ impl<Q: EventQueue> Engine<Q> {
 
     /// Cells mode: delay until particle i's centre leaves its cell, and the
     /// face it leaves through. Domain faces that are walls or the outlet
-    /// are not cell faces (their own events handle them).
+    /// are not cell faces (their own events handle them). Per axis the
+    /// face ahead is chosen by the sign of the velocity and its time
+    /// computed whether or not it is open, so that the loop has no
+    /// unpredictable branch; the earliest open face wins (the lowest axis
+    /// on a tie).
     #[inline]
     pub(super) fn cell_exit(&self, pos: DVec3, vel: DVec3, c: [usize; 3]) -> (f64, Scheduled) {
         let dims = self.cells.dims();
         let lo = self.cells.cell_lo(c);
-        let width = self.cells.width();
+        let hi = lo + self.cells.width();
         let mut best = f64::INFINITY;
         let mut face = 0;
         for axis in 0..3 {
             let v = vel[axis];
+            let up = v > 0.0;
             let periodic = self.domain.axes[axis] == AxisBoundary::Periodic;
-            let t = if v > 0.0 && (periodic || c[axis] + 1 < dims[axis]) {
-                (lo[axis] + width[axis] - pos[axis]) / v
-            } else if v < 0.0 && (periodic || c[axis] > 0) {
-                (lo[axis] - pos[axis]) / v
+            let inside = if up {
+                c[axis] + 1 < dims[axis]
             } else {
-                continue;
+                c[axis] > 0
             };
-            if t < best {
+            let open = v != 0.0 && (periodic || inside);
+            let t = (if up { hi[axis] } else { lo[axis] } - pos[axis]) / v;
+            if open && t < best {
                 best = t;
-                face = (2 * axis + usize::from(v > 0.0)) as Face;
+                face = (2 * axis + usize::from(up)) as Face;
             }
         }
         let event = Scheduled {
