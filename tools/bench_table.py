@@ -143,7 +143,7 @@ def main():
                 "rss": statistics.median(r["peak_rss_bytes_per_particle"] or 0 for r in e),
                 "estimate": e[0]["bytes_per_particle"],
                 "rss_now": statistics.median(r.get("rss_bytes_per_particle") or 0 for r in e),
-                "edmd_rss": {v: statistics.median(r.get("maxrss_kib", 0) * 1024 / n for r in runs[v])
+                "edmd_rss": {v: statistics.median((r.get("max_rss_kib") or r.get("maxrss_kib") or 0) * 1024 / n for r in runs[v])
                              for v in a.edmd_bins},
             })
     variants = list(a.edmd_bins)

@@ -49,6 +49,14 @@ impl<Q: EventQueue> Engine<Q> {
             return;
         }
         let end = self.now + dt;
+        if end > self.horizon {
+            // The caller's promise to re-predict by the horizon
+            // ([`Engine::set_prediction_horizon`]) does not cover this
+            // advance: every particle is predicted afresh, completely.
+            self.horizon = f64::INFINITY;
+            self.needs_prediction = true;
+            self.kicks_uniform = false;
+        }
         self.ensure_predicted();
         self.run_events(end, dt, false);
     }
@@ -197,6 +205,31 @@ impl<Q: EventQueue> Engine<Q> {
         due
     }
 
+    /// Promises that every particle will be re-predicted `delay` (s) from
+    /// now at the latest, as a coupled run does at each flow-step end
+    /// (its per-particle kicks change every velocity): until then,
+    /// predictions need find only the events before that time. A particle
+    /// with none is left out of the queue, and a pair search rejects the
+    /// pairs that cannot touch before it without a square root. Events
+    /// before the horizon are found exactly as without one, so a run gives
+    /// the same bits. An [`Engine::advance`] past the horizon first
+    /// re-predicts every particle completely; [`Engine::end_flow_step`]
+    /// lifts it. Hard spheres only (ignored otherwise).
+    pub fn set_prediction_horizon(&mut self, delay: f64) {
+        if self.config.model == ContactModel::Hard && delay >= 0.0 {
+            self.horizon = self.now + delay;
+        }
+    }
+
+    /// How far ahead of now (s) a search must look: to the horizon, with a
+    /// margin of round-off, so that every event at `now + delay` before the
+    /// horizon is found exactly as without one (whether it is queued is
+    /// decided on the same sum as the event loop's end, in `apply`).
+    #[inline]
+    pub(super) fn prediction_reach(&self) -> f64 {
+        (self.horizon - self.now) + self.horizon.abs() * 1e-15
+    }
+
     /// Wall-clock time this process has spent re-predicting every particle
     /// (after kicks and flow-step ends), s.
     pub fn prediction_wall_seconds(&self) -> f64 {
@@ -245,6 +278,7 @@ impl<Q: EventQueue> Engine<Q> {
             c.time -= shift;
         }
         self.needs_prediction = true;
+        self.horizon = f64::INFINITY;
         self.retry_pending_reinsertions();
     }
 
@@ -359,9 +393,10 @@ impl<Q: EventQueue> Engine<Q> {
     fn prediction(&self, i: usize) -> Prediction {
         let ki = self.kin_now(i);
         let (best, event) = self.boundary_event(i, &ki);
+        let reach = self.prediction_reach();
         let found = match self.config.neighbours {
             NeighbourSearch::Lists => {
-                let mut search = PairSearch::new(self, i, ki, best);
+                let mut search = PairSearch::new(self, i, ki, best.min(reach));
                 // The list is the batch: its records are all requested first.
                 let list = self.lists.list(i);
                 if self.prefetches() {
@@ -375,7 +410,7 @@ impl<Q: EventQueue> Engine<Q> {
                 search.found
             }
             NeighbourSearch::Cells => {
-                let search = PairSearch::new(self, i, ki, f64::INFINITY);
+                let search = PairSearch::new(self, i, ki, reach);
                 // At least 3 cells per periodic axis: images are exact.
                 self.search_cells(search, CellScan::Near)
             }
@@ -401,7 +436,13 @@ impl<Q: EventQueue> Engine<Q> {
             self.list_pairs[i] = p.candidate;
         }
         self.event_state[i].scheduled = p.event;
-        self.queue.set(i as u32, self.now + p.delay);
+        let time = self.now + p.delay;
+        if time < self.horizon || self.horizon == f64::INFINITY {
+            self.queue.set(i as u32, time);
+        } else {
+            // Re-predicted before this event could happen.
+            self.queue.remove(i as u32);
+        }
     }
 
     /// Cells mode, after particle i crossed into a new cell through a face
@@ -410,23 +451,29 @@ impl<Q: EventQueue> Engine<Q> {
     /// the 9 newly adjacent cells are scanned and the best pair of the
     /// last prediction is kept (while its partner has had no event; every
     /// particle of the old cells that had one has since scanned i's cell
-    /// itself). Otherwise, a full prediction.
+    /// itself). Without a pair, the last prediction covered those cells up
+    /// to its horizon: the partial scan needs it to reach the current one.
+    /// Otherwise, a full prediction.
     #[inline]
     pub(super) fn predict_after_crossing(&mut self, i: usize, axis: usize, up: bool) {
-        // A cells-mode search has no horizon: a finite time is a pair.
         let kept = self.cell_state[i].candidate;
-        if kept.time.is_finite()
-            && self.event_state[neighbours::unpack(kept.entry).0 as usize].counter
+        let pair = kept.has_pair();
+        let stale = if pair {
+            self.event_state[neighbours::unpack(kept.entry).0 as usize].counter
                 != kept.partner_count
-        {
+        } else {
+            // Also a NaN time: never searched.
+            kept.time.is_nan() || kept.time < self.horizon
+        };
+        if stale {
             return self.predict(i);
         }
         let ki = self.kin_now(i);
         let (best, event) = self.boundary_event(i, &ki);
-        let search = PairSearch::new(self, i, ki, f64::INFINITY);
+        let search = PairSearch::new(self, i, ki, self.prediction_reach());
         let mut found = self.search_cells(search, CellScan::NewLayer { axis, up });
         let now = self.now;
-        if kept.time.is_finite() && now + found.best >= kept.time {
+        if pair && now + found.best >= kept.time {
             found.best = kept.time - now;
             found.best_entry = Some(kept.entry);
         }
@@ -632,6 +679,10 @@ struct PairSearch<'a> {
     found: PairFound,
     /// The partner not to collide again at delay 0 (see `predict`).
     just_hit: u32,
+    /// Whether the search stops at a prediction horizon
+    /// ([`Engine::set_prediction_horizon`]): then pairs are rejected
+    /// against the running best before the square root.
+    bounded: bool,
     soft_i: bool,
     kin: &'a [Kinematics],
     is_soft: &'a [bool],
@@ -660,6 +711,7 @@ impl<'a> PairSearch<'a> {
                 best_entry: None,
             },
             just_hit: engine.just_hit(i),
+            bounded: engine.horizon.is_finite(),
             soft_i: engine.is_soft[i],
             kin: &engine.kin,
             is_soft: &engine.is_soft,
@@ -686,11 +738,17 @@ impl Gather for PairSearch<'_> {
         }
         let kj = &self.kin[j as usize];
         let pj = kj.position_at(self.now) + self.shifts[code as usize];
-        let t = geometry::pair_contact_time_eager(
+        let (r, v, sigma) = (
             self.i.pos - pj,
             self.i.vel - kj.vel,
             self.i.radius + kj.radius,
         );
+        // The same time either way where it is below the running best.
+        let t = if self.bounded {
+            geometry::pair_contact_time_before(r, v, sigma, self.found.best)
+        } else {
+            geometry::pair_contact_time_eager(r, v, sigma)
+        };
         if t < self.found.best && !(t == 0.0 && j == self.just_hit) {
             self.found = PairFound {
                 best: t,
@@ -701,12 +759,6 @@ impl Gather for PairSearch<'_> {
 }
 
 impl PairFound {
-    /// No pair yet, with no bound.
-    pub(super) const NONE: PairFound = PairFound {
-        best: f64::INFINITY,
-        best_entry: None,
-    };
-
     /// The best pair found, or the search's horizon without one, to keep
     /// for a later partial prediction.
     #[inline]

@@ -303,6 +303,11 @@ pub struct Engine<Q: EventQueue> {
     /// only, never part of a result or a state.
     prediction_wall_seconds: f64,
     needs_prediction: bool,
+    /// Engine-clock time by which every particle will be re-predicted
+    /// ([`Engine::set_prediction_horizon`]): predictions look for events
+    /// before it only, and a particle whose next event lies beyond it is
+    /// not queued. `INFINITY` (complete predictions) unless set.
+    horizon: f64,
     /// Whether every velocity change since the last [`Engine::predict_all`]
     /// outside events was the same for all particles ([`Engine::kick_all`]):
     /// then relative motions, and so the kept pairs, still hold. True at
@@ -468,6 +473,7 @@ impl<Q: EventQueue> Engine<Q> {
             time_origin: 0.0,
             time_origin_error: 0.0,
             needs_prediction: true,
+            horizon: f64::INFINITY,
             kicks_uniform: true,
             prediction_wall_seconds: 0.0,
             pair_sweep: Default::default(),

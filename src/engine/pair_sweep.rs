@@ -133,8 +133,16 @@ impl<Q: EventQueue> Engine<Q> {
             place,
             found,
         } = sweep;
+        // Up to the prediction horizon ([`Engine::set_prediction_horizon`]).
+        let reach = self.prediction_reach();
         found.clear();
-        found.resize(particles.len(), PairFound::NONE);
+        found.resize(
+            particles.len(),
+            PairFound {
+                best: reach,
+                best_entry: None,
+            },
+        );
         let view = SweepView {
             particles,
             flats,
@@ -246,7 +254,15 @@ impl<Q: EventQueue> Engine<Q> {
         } else {
             pa.pos - (pb.pos + self.image_shift[code as usize])
         };
-        let t = geometry::pair_contact_time_eager(offset, pa.vel - pb.vel, pa.radius + pb.radius);
+        let (v, sigma) = (pa.vel - pb.vel, pa.radius + pb.radius);
+        // Below the horizon, the same time either way; with one, most
+        // pairs are rejected before the square root.
+        let horizon = self.prediction_reach();
+        let t = if horizon.is_finite() {
+            geometry::pair_contact_time_before(offset, v, sigma, horizon)
+        } else {
+            geometry::pair_contact_time_eager(offset, v, sigma)
+        };
         if t == f64::INFINITY {
             return;
         }

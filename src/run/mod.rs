@@ -531,6 +531,12 @@ impl<Q: EventQueue> FlowLoop<'_, Q> {
     fn step(&mut self, step: u64, dt: f64, last: bool) -> anyhow::Result<()> {
         let s = self.s;
         let gravity = s.domain.gravity;
+        // With gas every particle gets its own kick, and so a new
+        // prediction, at the end of this step: the predictions of the
+        // step need look no further.
+        if self.gas.is_some() {
+            self.engine.set_prediction_horizon(dt);
+        }
         if let Some(f) = self.feeder.as_mut() {
             f.feed(s, &mut self.engine, dt);
         }
