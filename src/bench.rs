@@ -40,6 +40,8 @@ pub struct BenchOptions {
     /// Flow-step interval in units of the mean free time; `None` for pure
     /// event-driven flight.
     pub flow_step: Option<f64>,
+    /// The kicks at each flow step.
+    pub kicks: FlowKicks,
     /// Neighbour-shell thickness δ in diameters (lists only).
     pub skin: f64,
     pub queue: QueueKind,
@@ -62,6 +64,7 @@ impl Default for BenchOptions {
             equilibrate: 20.0,
             measure: 50.0,
             flow_step: None,
+            kicks: FlowKicks::Uniform,
             skin: DEFAULT_SKIN,
             queue: QueueKind::default(),
             neighbours: None,
@@ -71,6 +74,21 @@ impl Default for BenchOptions {
             seed: 1,
         }
     }
+}
+
+/// The kicks at each flow step of the bench (zero velocity changes, so
+/// that the dynamics stays that of the free fluid).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum FlowKicks {
+    /// One kick for all (gravity alone): each particle keeps its pair.
+    #[default]
+    Uniform,
+    /// One kick per particle, as the gas coupling gives, with the
+    /// prediction horizon `edpm run` sets with gas
+    /// ([`Engine::set_prediction_horizon`]): every pair is tested again,
+    /// up to the next flow step.
+    PerParticle,
 }
 
 /// Default neighbour-shell thickness (diameters): the fastest measured with
@@ -122,6 +140,7 @@ pub struct BenchResult {
     pub skin: f64,
     pub start: Start,
     pub flow_step: Option<f64>,
+    pub kicks: FlowKicks,
     pub collisions: u64,
     pub cpu_seconds: f64,
     pub collisions_per_cpu_second: f64,
@@ -593,7 +612,13 @@ fn run_with<Q: EventQueue>(opts: &BenchOptions) -> BenchResult {
             engine.advance(interval);
             if opts.flow_step.is_some() {
                 engine.end_flow_step();
-                engine.kick_all(DVec3::ZERO);
+                match opts.kicks {
+                    FlowKicks::Uniform => engine.kick_all(DVec3::ZERO),
+                    FlowKicks::PerParticle => {
+                        engine.kick_slots(&vec![DVec3::ZERO; engine.slots()]);
+                        engine.set_prediction_horizon(interval);
+                    }
+                }
             }
             if reorder_every > 0 && engine.counters.pair_collisions - last_reorder >= reorder_every
             {
@@ -639,6 +664,7 @@ fn run_with<Q: EventQueue>(opts: &BenchOptions) -> BenchResult {
         skin,
         start: initial,
         flow_step: opts.flow_step,
+        kicks: opts.kicks,
         collisions,
         cpu_seconds,
         collisions_per_cpu_second: collisions as f64 / cpu_seconds,

@@ -222,6 +222,12 @@ enum Command {
         /// synchronised and re-predicted, as in a coupled run.
         #[arg(long)]
         flow_step: Option<f64>,
+        /// The kicks at each flow step (zero velocity changes): one for
+        /// all, whose kept pairs survive, or one per particle, as the gas
+        /// coupling gives, after which every pair is tested again up to
+        /// the next flow step.
+        #[arg(long, value_enum, default_value = "uniform")]
+        kicks: KicksArg,
         /// Neighbour-shell thickness in diameters (lists only).
         #[arg(long, default_value_t = bench::DEFAULT_SKIN)]
         skin: f64,
@@ -255,6 +261,21 @@ enum NeighbourArg {
     Auto,
     Lists,
     Cells,
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum KicksArg {
+    Uniform,
+    PerParticle,
+}
+
+impl From<KicksArg> for bench::FlowKicks {
+    fn from(k: KicksArg) -> Self {
+        match k {
+            KicksArg::Uniform => bench::FlowKicks::Uniform,
+            KicksArg::PerParticle => bench::FlowKicks::PerParticle,
+        }
+    }
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -556,6 +577,7 @@ fn dispatch(command: Command) -> anyhow::Result<()> {
             equilibrate,
             measure,
             flow_step,
+            kicks,
             skin,
             queue,
             neighbours,
@@ -569,6 +591,7 @@ fn dispatch(command: Command) -> anyhow::Result<()> {
             equilibrate,
             measure,
             flow_step,
+            kicks: kicks.into(),
             skin,
             queue: queue.into(),
             neighbours: neighbours.search(),
