@@ -13,13 +13,15 @@
 //!   and the re-prediction of every particle after them (the pair sweep,
 //!   `Engine::predict_all`), N = 32000 (55 and 38 cells a side at φ = 0.1
 //!   and 0.3, so that most cells are away from the periodic faces), on one
-//!   thread, per particle.
+//!   thread, per particle; with the prediction horizon `edpm run` sets
+//!   (`Engine::set_prediction_horizon`, here 0.1 mean free times) and
+//!   without.
 
 use std::hint::black_box;
 use std::time::{Duration, Instant};
 
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
-use edpm::bench::fcc_system;
+use edpm::bench::{fcc_system, mean_free_time};
 use edpm::collision::ContactParams;
 use edpm::engine::{Engine, EngineConfig, NeighbourSearch, auto_neighbour_search};
 use edpm::materials::MaterialTable;
@@ -147,16 +149,27 @@ fn re_prediction(c: &mut Criterion) {
                 0.01 * glam::DVec3::new(a.sin(), (1.3 * a).cos(), (0.7 * a).sin())
             })
             .collect();
-        group.bench_function(BenchmarkId::new("per-particle kicks", phi), |b| {
-            pool.install(|| {
-                b.iter(|| {
-                    engine.end_flow_step();
-                    engine.kick_slots(&kicks);
-                    // A flight of zero length: the re-prediction alone.
-                    engine.advance(0.0);
+        for (label, horizon) in [
+            ("per-particle kicks", None),
+            (
+                "per-particle kicks, horizon",
+                Some(0.1 * mean_free_time(phi)),
+            ),
+        ] {
+            group.bench_function(BenchmarkId::new(label, phi), |b| {
+                pool.install(|| {
+                    b.iter(|| {
+                        engine.end_flow_step();
+                        engine.kick_slots(&kicks);
+                        if let Some(delay) = horizon {
+                            engine.set_prediction_horizon(delay);
+                        }
+                        // A flight of zero length: the re-prediction alone.
+                        engine.advance(0.0);
+                    })
                 })
-            })
-        });
+            });
+        }
         black_box(engine.kinetic_energy());
     }
     group.finish();

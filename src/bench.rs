@@ -340,7 +340,7 @@ fn unit_spheres() -> MaterialTable {
 /// Enskog mean free time at T = 1 (σ = m = 1):
 /// 1 / (4 ρ σ² g0 sqrt(π T / m)), with the Carnahan–Starling contact
 /// value g0 = (1 − φ/2) / (1 − φ)³.
-fn mean_free_time(phi: f64) -> f64 {
+pub fn mean_free_time(phi: f64) -> f64 {
     let rho = 6.0 * phi / std::f64::consts::PI;
     let g0 = (1.0 - 0.5 * phi) / (1.0 - phi).powi(3);
     1.0 / (4.0 * rho * g0 * std::f64::consts::PI.sqrt())

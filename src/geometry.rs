@@ -19,7 +19,8 @@ pub fn pair_contact_time(r: glam::DVec3, v: glam::DVec3, sigma: f64) -> f64 {
 /// As [`pair_contact_time`], but returns `INFINITY` whenever the contact
 /// time is not smaller than `horizon`. Since `sqrt(b² - a c) ≤ |b|`, the
 /// contact time is at least `c / (-2b)`; pairs beyond the horizon are
-/// rejected with that bound before any square root is taken.
+/// rejected with that bound before any square root is taken. `horizon`
+/// (s) is positive.
 #[inline]
 pub fn pair_contact_time_before(r: glam::DVec3, v: glam::DVec3, sigma: f64, horizon: f64) -> f64 {
     let b = r.dot(v);
@@ -153,6 +154,47 @@ mod tests {
         let v = DVec3::new(-2.0, 0.0, 0.0);
         assert_eq!(pair_contact_time_before(r, v, 1.0, 0.999), f64::INFINITY);
         assert!((pair_contact_time_before(r, v, 1.0, 1.001) - 1.0).abs() < 1e-15);
+    }
+
+    #[test]
+    fn the_horizon_changes_no_contact_time_below_it() {
+        // The early exits in their textbook order, without a horizon.
+        fn reference(r: DVec3, v: DVec3, sigma: f64) -> f64 {
+            let b = r.dot(v);
+            if b >= 0.0 {
+                return f64::INFINITY;
+            }
+            let c = r.length_squared() - sigma * sigma;
+            if c <= 0.0 {
+                return 0.0;
+            }
+            let disc = b * b - v.length_squared() * c;
+            if disc <= 0.0 {
+                return f64::INFINITY;
+            }
+            c / (disc.sqrt() - b)
+        }
+        // Gaps from overlap to far apart, every approach angle, receding
+        // and sideways (b = 0) pairs included; bit for bit.
+        for k in 0..20000 {
+            let a = k as f64 * 0.0137;
+            let gap = -0.05 + 0.002 * (k % 1000) as f64;
+            let r = DVec3::new(1.0 + gap, 0.3 * a.sin(), 0.0) * [1.0, 0.9, 1.1][k % 3];
+            let v = match k % 7 {
+                0 => DVec3::new(0.0, 0.0, 1.0),
+                _ => DVec3::new(-a.cos(), 0.5 * a.sin(), -0.3 * (0.7 * a).sin()),
+            };
+            let t = reference(r, v, 1.0);
+            assert_eq!(pair_contact_time(r, v, 1.0).to_bits(), t.to_bits());
+            for horizon in [1e-3, 0.05, 0.5, 4.0] {
+                let expected = if t < horizon { t } else { f64::INFINITY };
+                assert_eq!(
+                    pair_contact_time_before(r, v, 1.0, horizon).to_bits(),
+                    expected.to_bits(),
+                    "{r} {v} {horizon}"
+                );
+            }
+        }
     }
 
     #[test]
