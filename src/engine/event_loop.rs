@@ -49,14 +49,7 @@ impl<Q: EventQueue> Engine<Q> {
             return;
         }
         let end = self.now + dt;
-        if end > self.horizon {
-            // The caller's promise to re-predict by the horizon
-            // ([`Engine::set_prediction_horizon`]) does not cover this
-            // advance: every particle is predicted afresh, completely.
-            self.horizon = f64::INFINITY;
-            self.needs_prediction = true;
-            self.kicks_uniform = false;
-        }
+        self.lift_horizon_before(end);
         self.ensure_predicted();
         self.run_events(end, dt, false);
     }
@@ -160,6 +153,7 @@ impl<Q: EventQueue> Engine<Q> {
     /// Recording must be enabled.
     pub fn next_collision(&mut self, horizon: f64) -> Option<CollisionRecord> {
         let end = self.now + horizon;
+        self.lift_horizon_before(end);
         self.ensure_predicted();
         while let Some((t, i)) = self.queue.peek_min() {
             if t >= end {
@@ -178,6 +172,18 @@ impl<Q: EventQueue> Engine<Q> {
         }
         self.now = end;
         None
+    }
+
+    /// Lifts the prediction horizon ([`Engine::set_prediction_horizon`])
+    /// when processing events up to `end` (s, engine clock) would pass it:
+    /// the caller's promise does not cover that, so every particle is
+    /// predicted afresh, completely.
+    fn lift_horizon_before(&mut self, end: f64) {
+        if end > self.horizon {
+            self.horizon = f64::INFINITY;
+            self.needs_prediction = true;
+            self.kicks_uniform = false;
+        }
     }
 
     #[inline]
@@ -211,13 +217,21 @@ impl<Q: EventQueue> Engine<Q> {
     /// predictions need find only the events before that time. A particle
     /// with none is left out of the queue, and a pair search rejects the
     /// pairs that cannot touch before it without a square root. Events
-    /// before the horizon are found exactly as without one, so a run gives
-    /// the same bits. An [`Engine::advance`] past the horizon first
-    /// re-predicts every particle completely; [`Engine::end_flow_step`]
-    /// lifts it. Hard spheres only (ignored otherwise).
+    /// before the horizon are found as without one (the same collisions;
+    /// a near-tie between two partners a few ulps apart may resolve the
+    /// other way). An [`Engine::advance`] or [`Engine::next_collision`]
+    /// past the horizon first re-predicts every particle completely, as
+    /// does a horizon set later than the one in force (the particles left
+    /// out of the queue would stay out); [`Engine::end_flow_step`] lifts
+    /// it. Hard spheres only (ignored otherwise).
     pub fn set_prediction_horizon(&mut self, delay: f64) {
         if self.config.model == ContactModel::Hard && delay >= 0.0 {
-            self.horizon = self.now + delay;
+            let horizon = self.now + delay;
+            if self.horizon.is_finite() && horizon > self.horizon {
+                self.needs_prediction = true;
+                self.kicks_uniform = false;
+            }
+            self.horizon = horizon;
         }
     }
 
@@ -378,7 +392,8 @@ impl<Q: EventQueue> Engine<Q> {
         }
     }
 
-    /// Finds particle i's earliest event (Eq. 46) and queues it. The
+    /// Finds particle i's earliest event (Eq. 46) and queues it (see
+    /// [`Engine::set_prediction_horizon`] for events beyond one). The
     /// particle's stored state is not changed: its position now is
     /// extrapolated, so only collisions, wraps and flow-step ends ever
     /// rewrite positions (which keeps event logs replayable bit for bit).
@@ -427,7 +442,8 @@ impl<Q: EventQueue> Engine<Q> {
         self.choose(best, event, found)
     }
 
-    /// Stores prediction `p` of particle i and queues its event.
+    /// Stores prediction `p` of particle i and queues its event, or takes
+    /// i out of the queue when the event lies beyond the prediction horizon.
     #[inline]
     fn apply(&mut self, i: usize, p: &Prediction) {
         if self.config.neighbours == NeighbourSearch::Cells {
@@ -747,7 +763,9 @@ impl Gather for PairSearch<'_> {
             self.i.vel - kj.vel,
             self.i.radius + kj.radius,
         );
-        // The same time either way where it is below the running best.
+        // The same time either way where it is below the running best
+        // (the bound's early exit can reject a pair within an ulp of it:
+        // a near-tie may then go to the partner found first).
         let t = if self.bounded {
             geometry::pair_contact_time_before(r, v, sigma, self.found.best)
         } else {

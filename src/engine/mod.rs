@@ -884,6 +884,53 @@ mod tests {
         Engine::<CalendarQueue>::new(domain, table, config, particles).expect("engine")
     }
 
+    /// Two spheres of radius 1 mm whose surfaces are 8 mm apart along x,
+    /// closing at 8 mm/s in a walled 0.1 m cube: they touch at t = 1 s.
+    fn pair_touching_at_one_second(neighbours: NeighbourSearch) -> Engine<CalendarQueue> {
+        let sphere = |x: f64, vx: f64| NewParticle {
+            pos: DVec3::new(x, 0.05, 0.05),
+            vel: DVec3::new(vx, 0.0, 0.0),
+            omega: DVec3::ZERO,
+            radius: 1e-3,
+            material: 0,
+        };
+        let config = EngineConfig {
+            skin: 5e-3,
+            neighbours,
+            record_events: true,
+            ..Default::default()
+        };
+        let particles = [sphere(0.045, 0.004), sphere(0.055, -0.004)];
+        walled_cube(0.1, ContactParams::ELASTIC_SMOOTH, config, &particles)
+    }
+
+    /// A prediction horizon only lets the engine skip what it will
+    /// re-predict: processing past it, by `next_collision` or after a
+    /// later horizon was promised, still finds the collision at 1 s.
+    #[test]
+    fn a_collision_after_the_horizon_is_found_when_the_run_gets_there() {
+        for neighbours in [NeighbourSearch::Lists, NeighbourSearch::Cells] {
+            let mut engine = pair_touching_at_one_second(neighbours);
+            engine.set_prediction_horizon(0.5);
+            let found = engine.next_collision(1.5).map(|c| c.time);
+            assert!(
+                found.is_some_and(|t| (t - 1.0).abs() < 1e-9),
+                "{neighbours:?}: next_collision past the horizon found {found:?}"
+            );
+
+            let mut engine = pair_touching_at_one_second(neighbours);
+            engine.set_prediction_horizon(0.5);
+            engine.advance(0.3);
+            // A later promise: to re-predict by 2 s.
+            engine.set_prediction_horizon(1.7);
+            engine.advance(1.2);
+            assert_eq!(
+                engine.counters.pair_collisions, 1,
+                "{neighbours:?}: the collision at 1 s under a horizon moved later"
+            );
+        }
+    }
+
     /// A pair event whose pair no longer approaches when it fires (what
     /// round-off can do at a grazing contact) is re-predicted, never
     /// collided.

@@ -402,8 +402,8 @@ impl EventState {
 /// engine clock (s); `entry` is packed as in [`Scheduled`], with the
 /// partner's event counter at prediction. With `entry` = [`NO_PAIR`] there
 /// is no pair before `time`: a lists-mode search stops at the particle's
-/// boundary event, which is then that horizon; a cells-mode search has
-/// none (`INFINITY`).
+/// boundary event or the prediction horizon, whichever is earlier; a
+/// cells-mode search at the horizon (`INFINITY` without one).
 #[derive(Clone, Copy, Debug)]
 pub(super) struct PairCandidate {
     pub(super) time: f64,
