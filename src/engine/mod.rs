@@ -905,8 +905,9 @@ mod tests {
     }
 
     /// A prediction horizon only lets the engine skip what it will
-    /// re-predict: processing past it, by `next_collision` or after a
-    /// later horizon was promised, still finds the collision at 1 s.
+    /// re-predict: processing past it, by `advance`, by `next_collision`
+    /// or after a later horizon was promised, still finds the collision at
+    /// 1 s.
     #[test]
     fn a_collision_after_the_horizon_is_found_when_the_run_gets_there() {
         for neighbours in [NeighbourSearch::Lists, NeighbourSearch::Cells] {
@@ -916,6 +917,14 @@ mod tests {
             assert!(
                 found.is_some_and(|t| (t - 1.0).abs() < 1e-9),
                 "{neighbours:?}: next_collision past the horizon found {found:?}"
+            );
+
+            let mut engine = pair_touching_at_one_second(neighbours);
+            engine.set_prediction_horizon(0.5);
+            engine.advance(1.5);
+            assert_eq!(
+                engine.counters.pair_collisions, 1,
+                "{neighbours:?}: an advance past the horizon"
             );
 
             let mut engine = pair_touching_at_one_second(neighbours);
