@@ -884,23 +884,28 @@ mod tests {
         Engine::<CalendarQueue>::new(domain, table, config, particles).expect("engine")
     }
 
-    /// Two spheres of radius 1 mm whose surfaces are 8 mm apart along x,
-    /// closing at 8 mm/s in a walled 0.1 m cube: they touch at t = 1 s.
-    fn pair_touching_at_one_second(neighbours: NeighbourSearch) -> Engine<CalendarQueue> {
-        let sphere = |x: f64, vx: f64| NewParticle {
+    /// A sphere of radius 1 mm at `x` (m) on the centre line along x of a
+    /// 0.1 m cube, moving at `vx` (m/s) along it.
+    fn sphere_along_x(x: f64, vx: f64) -> NewParticle {
+        NewParticle {
             pos: DVec3::new(x, 0.05, 0.05),
             vel: DVec3::new(vx, 0.0, 0.0),
             omega: DVec3::ZERO,
             radius: 1e-3,
             material: 0,
-        };
+        }
+    }
+
+    /// Two spheres of radius 1 mm whose surfaces are 8 mm apart along x,
+    /// closing at 8 mm/s in a walled 0.1 m cube: they touch at t = 1 s.
+    fn pair_touching_at_one_second(neighbours: NeighbourSearch) -> Engine<CalendarQueue> {
         let config = EngineConfig {
             skin: 5e-3,
             neighbours,
             record_events: true,
             ..Default::default()
         };
-        let particles = [sphere(0.045, 0.004), sphere(0.055, -0.004)];
+        let particles = [sphere_along_x(0.045, 0.004), sphere_along_x(0.055, -0.004)];
         walled_cube(0.1, ContactParams::ELASTIC_SMOOTH, config, &particles)
     }
 
@@ -945,13 +950,6 @@ mod tests {
     /// collided.
     #[test]
     fn a_pair_receding_at_its_contact_is_re_predicted_not_collided() {
-        let sphere = |x: f64, vx: f64| NewParticle {
-            pos: DVec3::new(x, 0.05, 0.05),
-            vel: DVec3::new(vx, 0.0, 0.0),
-            omega: DVec3::ZERO,
-            radius: 1e-3,
-            material: 0,
-        };
         let params = ContactParams {
             e_n: 0.9,
             beta_0: 0.3,
@@ -961,7 +959,7 @@ mod tests {
             skin: 5e-3,
             ..Default::default()
         };
-        let particles = [sphere(0.050, 0.1), sphere(0.053, -0.1)];
+        let particles = [sphere_along_x(0.050, 0.1), sphere_along_x(0.053, -0.1)];
         let mut engine = walled_cube(0.1, params, config, &particles);
         engine.ensure_predicted();
         assert_eq!(engine.event_state[0].scheduled.kind, EventKind::Pair);

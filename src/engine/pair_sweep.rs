@@ -102,6 +102,9 @@ struct SweepView<'a> {
     place: &'a [u32],
     /// Cells per layer along [`crate::neighbours::CellGrid::layer_axis`].
     layer_cells: usize,
+    /// How far ahead the sweep looks (s): to the prediction horizon
+    /// ([`Engine::set_prediction_horizon`]), `INFINITY` without one.
+    reach: f64,
 }
 
 impl SweepView<'_> {
@@ -133,7 +136,6 @@ impl<Q: EventQueue> Engine<Q> {
             place,
             found,
         } = sweep;
-        // Up to the prediction horizon ([`Engine::set_prediction_horizon`]).
         let reach = self.prediction_reach();
         found.clear();
         found.resize(
@@ -149,6 +151,7 @@ impl<Q: EventQueue> Engine<Q> {
             layer_start,
             place,
             layer_cells,
+            reach,
         };
         let slabs = slabs(layer_start);
         let mut tasks = Vec::with_capacity(slabs.len());
@@ -257,9 +260,8 @@ impl<Q: EventQueue> Engine<Q> {
         let (v, sigma) = (pa.vel - pb.vel, pa.radius + pb.radius);
         // Below the horizon, the same time either way; with one, most
         // pairs are rejected before the square root.
-        let horizon = self.prediction_reach();
-        let t = if horizon.is_finite() {
-            geometry::pair_contact_time_before(offset, v, sigma, horizon)
+        let t = if view.reach.is_finite() {
+            geometry::pair_contact_time_before(offset, v, sigma, view.reach)
         } else {
             geometry::pair_contact_time_eager(offset, v, sigma)
         };
