@@ -27,25 +27,35 @@ pub trait Gather {
     fn prefetch(&self, item: Self::Item);
     /// Takes `item` into account.
     fn take(&mut self, item: Self::Item);
+    /// Takes `items` into account, in order: the same as taking each
+    /// (a gatherer may work on several at once).
+    #[inline(always)]
+    fn take_all(&mut self, items: &[Self::Item]) {
+        for &item in items {
+            self.take(item);
+        }
+    }
 }
 
 /// Candidates to hand to a [`Gather`] in batches of `N`: each batch's data
-/// is requested first, so that its cache misses are in flight together,
-/// then the batch is taken in the order it was offered (the same order,
-/// and the same result, as taking each at once).
+/// is requested first (when `prefetches`), so that its cache misses are in
+/// flight together, then the batch is taken in the order it was offered
+/// (the same order, and the same result, as taking each at once).
 pub struct Batch<'a, G: Gather, const N: usize> {
     gather: &'a mut G,
     pending: [G::Item; N],
     len: usize,
+    prefetches: bool,
 }
 
 impl<'a, G: Gather, const N: usize> Batch<'a, G, N> {
     #[inline]
-    pub fn new(gather: &'a mut G) -> Self {
+    pub fn new(gather: &'a mut G, prefetches: bool) -> Self {
         Batch {
             gather,
             pending: [G::Item::default(); N],
             len: 0,
+            prefetches,
         }
     }
 
@@ -55,7 +65,9 @@ impl<'a, G: Gather, const N: usize> Batch<'a, G, N> {
         if self.len == N {
             self.take_pending();
         }
-        self.gather.prefetch(item);
+        if self.prefetches {
+            self.gather.prefetch(item);
+        }
         self.pending[self.len] = item;
         self.len += 1;
     }
@@ -68,9 +80,7 @@ impl<'a, G: Gather, const N: usize> Batch<'a, G, N> {
 
     #[inline(always)]
     fn take_pending(&mut self) {
-        for k in 0..self.len {
-            self.gather.take(self.pending[k]);
-        }
+        self.gather.take_all(&self.pending[..self.len]);
         self.len = 0;
     }
 }
@@ -95,7 +105,7 @@ mod tests {
     fn a_batch_takes_every_item_in_the_offered_order() {
         // 10 items through batches of 4: two full batches and a partial one.
         let mut log = Log::default();
-        let mut batch: Batch<Log, 4> = Batch::new(&mut log);
+        let mut batch: Batch<Log, 4> = Batch::new(&mut log, true);
         for k in 0..10 {
             batch.offer(k);
         }

@@ -22,6 +22,7 @@ mod event_loop;
 mod hybrid;
 mod neighbour_search;
 mod pair_sweep;
+mod partner_lanes;
 mod records;
 mod soft_stepper;
 mod state;
@@ -262,6 +263,8 @@ pub struct Engine<Q: EventQueue> {
     /// Whether any axis is periodic (else every image code is the identity).
     periodic: bool,
     image_shift: [DVec3; 27],
+    /// `image_shift` padded to four lanes (see `partner_lanes`).
+    image_shift_lanes: partner_lanes::ShiftLanes,
 
     kin: Vec<Kinematics>,
     spins: Spins,
@@ -446,6 +449,7 @@ impl<Q: EventQueue> Engine<Q> {
             rough,
             periodic: periodic.contains(&true),
             image_shift,
+            image_shift_lanes: partner_lanes::shift_lanes(&image_shift),
             kin: Vec::with_capacity(n),
             spins: Spins::default(),
             inv_mass: Vec::with_capacity(n),

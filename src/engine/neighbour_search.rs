@@ -197,7 +197,7 @@ impl<Q: EventQueue> Engine<Q> {
             kin: &self.kin,
         };
         if batched {
-            let mut batch: Batch<ShellLinker, LINK_BATCH> = Batch::new(&mut linker);
+            let mut batch: Batch<ShellLinker, LINK_BATCH> = Batch::new(&mut linker, true);
             self.cells.for_each_near(centre, |j, image| {
                 if j as usize != i {
                     batch.offer((j, image));

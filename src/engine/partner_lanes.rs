@@ -1,0 +1,281 @@
+//! Particle i's contact delays with a chunk of partners (Eq. 45): four
+//! partners per instruction on x86-64 CPUs with AVX2
+//! ([`geometry::pair_contact_times_x4`]), one at a time elsewhere. Both
+//! give the same bits, so a run's events do not depend on the CPU.
+
+use glam::DVec3;
+
+use super::store::Kinematics;
+use crate::geometry;
+use crate::neighbours;
+
+/// Partners handed to [`contact_delays`] at once.
+pub(super) const CHUNK: usize = 16;
+
+/// [`Partners::shift_lanes`].
+pub(super) type ShiftLanes = [[f64; 4]; 1 << (32 - neighbours::INDEX_BITS)];
+
+/// The image shifts `shifts` (m) as [`Partners::shift_lanes`].
+pub(super) fn shift_lanes(shifts: &[DVec3; 27]) -> ShiftLanes {
+    std::array::from_fn(|code| shifts.get(code).map_or([0.0; 4], |s| [s.x, s.y, s.z, 0.0]))
+}
+
+/// What a partner search reads of the partners: their kinematics and the
+/// periodic image shifts (m) their list or cell entries name.
+#[derive(Clone, Copy)]
+pub(super) struct Partners<'a> {
+    pub(super) kin: &'a [Kinematics],
+    pub(super) shifts: &'a [DVec3; 27],
+    /// `shifts` padded to four lanes, for whole-vector loads, and to every
+    /// code an entry can hold (those past 26 are never used).
+    pub(super) shift_lanes: &'a ShiftLanes,
+}
+
+/// The partner `entry`'s position (m) and velocity (m/s) relative to the
+/// particle with kinematics `ki` at time `now` (s), and the pair's contact
+/// distance (m).
+#[inline(always)]
+pub(super) fn relative(
+    ki: &Kinematics,
+    now: f64,
+    entry: u32,
+    partners: &Partners,
+) -> (DVec3, DVec3, f64) {
+    let (j, code) = neighbours::unpack(entry);
+    let kj = &partners.kin[j as usize];
+    let pj = kj.position_at(now) + partners.shifts[code as usize];
+    (ki.pos - pj, ki.vel - kj.vel, ki.radius + kj.radius)
+}
+
+/// Sets `times[k]` (s) to the contact delay of the particle with kinematics
+/// `ki` at time `now` (s) and the partner `entries[k]`, for every entry
+/// (at most [`CHUNK`]): what [`geometry::pair_contact_time_eager`] gives
+/// for [`relative`]'s pair.
+#[inline(always)]
+pub(super) fn contact_delays(
+    ki: &Kinematics,
+    now: f64,
+    entries: &[u32],
+    partners: &Partners,
+    times: &mut [f64; CHUNK],
+) {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU has AVX2, checked just above.
+        unsafe { contact_delays_avx2(ki, now, entries, partners, times) };
+        return;
+    }
+    contact_delays_one_by_one(ki, now, entries, partners, times);
+}
+
+/// [`contact_delays`] one partner at a time.
+#[inline(always)]
+fn contact_delays_one_by_one(
+    ki: &Kinematics,
+    now: f64,
+    entries: &[u32],
+    partners: &Partners,
+    times: &mut [f64; CHUNK],
+) {
+    for (t, &entry) in times.iter_mut().zip(entries) {
+        let (r, v, sigma) = relative(ki, now, entry, partners);
+        *t = geometry::pair_contact_time_eager(r, v, sigma);
+    }
+}
+
+/// [`contact_delays`] four partners at a time. A short last group repeats
+/// its last partner in the spare lanes.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn contact_delays_avx2(
+    ki: &Kinematics,
+    now: f64,
+    entries: &[u32],
+    partners: &Partners,
+    times: &mut [f64; CHUNK],
+) {
+    assert!(entries.len() <= CHUNK);
+    let centre = Centre::new(ki, now);
+    let (groups, rest) = entries.as_chunks::<4>();
+    for (group, out) in groups.iter().zip(times.as_chunks_mut::<4>().0) {
+        centre.group_delays(*group, partners, out);
+    }
+    if let Some(&last) = rest.last() {
+        let mut group = [last; 4];
+        group[..rest.len()].copy_from_slice(rest);
+        let mut out = [0.0; 4];
+        centre.group_delays(group, partners, &mut out);
+        times[entries.len() - rest.len()..entries.len()].copy_from_slice(&out[..rest.len()]);
+    }
+}
+
+/// Particle i's position, velocity and radius in every lane, and the time.
+#[cfg(target_arch = "x86_64")]
+struct Centre {
+    pos: [std::arch::x86_64::__m256d; 3],
+    vel: [std::arch::x86_64::__m256d; 3],
+    radius: std::arch::x86_64::__m256d,
+    now: std::arch::x86_64::__m256d,
+}
+
+#[cfg(target_arch = "x86_64")]
+impl Centre {
+    #[target_feature(enable = "avx2")]
+    #[inline]
+    fn new(ki: &Kinematics, now: f64) -> Self {
+        use std::arch::x86_64::_mm256_set1_pd as splat;
+        Centre {
+            pos: ki.pos.to_array().map(|x| splat(x)),
+            vel: ki.vel.to_array().map(|x| splat(x)),
+            radius: splat(ki.radius),
+            now: splat(now),
+        }
+    }
+
+    /// The delays of four partners: their records are loaded as two rows
+    /// of four (position and time, velocity and radius; see
+    /// [`Kinematics`]) and transposed into one vector per quantity.
+    #[target_feature(enable = "avx2")]
+    #[inline]
+    fn group_delays(&self, group: [u32; 4], partners: &Partners, out: &mut [f64; 4]) {
+        use std::arch::x86_64::*;
+        let mut rows = [[_mm256_setzero_pd(); 4]; 3];
+        for (k, entry) in group.into_iter().enumerate() {
+            let (j, code) = neighbours::unpack(entry);
+            let record = (&partners.kin[j as usize] as *const Kinematics).cast::<f64>();
+            // SAFETY: `Kinematics` is `repr(C, align(64))`: eight f64
+            // (position, time, velocity, radius), so both 32-byte loads
+            // are aligned and inside the record.
+            unsafe {
+                rows[0][k] = _mm256_load_pd(record);
+                rows[1][k] = _mm256_load_pd(record.add(4));
+            }
+            // SAFETY: a 32-byte read of one `[f64; 4]`.
+            rows[2][k] = unsafe { _mm256_loadu_pd(partners.shift_lanes[code as usize].as_ptr()) };
+        }
+        let [pos_time, vel_radius, shift] = rows;
+        let (pos_time, vel_radius, shift) =
+            (transpose(pos_time), transpose(vel_radius), transpose(shift));
+        let dt = _mm256_sub_pd(self.now, pos_time[3]);
+        // As `relative`: (p + v dt) + shift, then i's minus the partner's.
+        let r: [__m256d; 3] = std::array::from_fn(|a| {
+            let moved = _mm256_add_pd(pos_time[a], _mm256_mul_pd(vel_radius[a], dt));
+            _mm256_sub_pd(self.pos[a], _mm256_add_pd(moved, shift[a]))
+        });
+        let v: [__m256d; 3] = std::array::from_fn(|a| _mm256_sub_pd(self.vel[a], vel_radius[a]));
+        let sigma = _mm256_add_pd(self.radius, vel_radius[3]);
+        let t = geometry::pair_contact_times_x4(r, v, sigma);
+        // SAFETY: `out` holds exactly four f64.
+        unsafe { _mm256_storeu_pd(out.as_mut_ptr(), t) };
+    }
+}
+
+/// Rows of four lanes each to columns: lane k of output a is lane a of
+/// row k.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+fn transpose(rows: [std::arch::x86_64::__m256d; 4]) -> [std::arch::x86_64::__m256d; 4] {
+    use std::arch::x86_64::*;
+    let low01 = _mm256_unpacklo_pd(rows[0], rows[1]);
+    let high01 = _mm256_unpackhi_pd(rows[0], rows[1]);
+    let low23 = _mm256_unpacklo_pd(rows[2], rows[3]);
+    let high23 = _mm256_unpackhi_pd(rows[2], rows[3]);
+    [
+        _mm256_permute2f128_pd::<0x20>(low01, low23),
+        _mm256_permute2f128_pd::<0x20>(high01, high23),
+        _mm256_permute2f128_pd::<0x31>(low01, low23),
+        _mm256_permute2f128_pd::<0x31>(high01, high23),
+    ]
+}
+
+#[cfg(test)]
+mod tests {
+    use rand::{RngExt, SeedableRng};
+    use rand_xoshiro::Xoshiro256PlusPlus;
+
+    use super::*;
+
+    /// Random partners around a particle, some touching, some overlapping,
+    /// some at rest relative to it, with random image codes.
+    fn scene(seed: u64) -> (Kinematics, Vec<Kinematics>, Vec<u32>, [DVec3; 27]) {
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
+        let mut draw = |scale: f64| {
+            DVec3::new(
+                rng.random_range(-scale..scale),
+                rng.random_range(-scale..scale),
+                rng.random_range(-scale..scale),
+            )
+        };
+        let ki = Kinematics {
+            pos: draw(1.0),
+            time: 0.25,
+            vel: draw(1.0),
+            radius: 0.5,
+        };
+        let mut kin = Vec::new();
+        for k in 0..64 {
+            let (pos, vel) = match k % 4 {
+                // Exactly touching, and exactly at rest relative to i.
+                0 => (ki.pos + DVec3::X, ki.vel),
+                1 => (ki.pos + draw(0.5), draw(1.0)),
+                _ => (ki.pos + draw(3.0), draw(1.0)),
+            };
+            kin.push(Kinematics {
+                pos,
+                time: 0.1 * (k % 3) as f64,
+                vel,
+                radius: 0.5 + 0.01 * (k % 5) as f64,
+            });
+        }
+        let shifts: [DVec3; 27] =
+            std::array::from_fn(|code| if code == 13 { DVec3::ZERO } else { draw(4.0) });
+        let entries = (0..64u32)
+            .map(|j| neighbours::pack(j, if j % 3 == 0 { 13 } else { j % 27 }))
+            .collect();
+        (ki, kin, entries, shifts)
+    }
+
+    #[test]
+    fn four_at_a_time_gives_the_bits_of_one_at_a_time() {
+        // Delays seen: zero (touching or overlapping), finite, infinite.
+        let mut kinds = [0usize; 3];
+        for seed in 0..50 {
+            let (ki, kin, entries, shifts) = scene(seed);
+            let shift_lanes = shift_lanes(&shifts);
+            let partners = Partners {
+                kin: &kin,
+                shifts: &shifts,
+                shift_lanes: &shift_lanes,
+            };
+            // Every chunk length, so that short last groups are covered.
+            for len in 1..=CHUNK {
+                let chunk = &entries[(seed as usize) % 40..][..len];
+                let (mut fast, mut slow) = ([-1.0; CHUNK], [-1.0; CHUNK]);
+                contact_delays(&ki, 0.75, chunk, &partners, &mut fast);
+                contact_delays_one_by_one(&ki, 0.75, chunk, &partners, &mut slow);
+                for k in 0..len {
+                    assert_eq!(
+                        fast[k].to_bits(),
+                        slow[k].to_bits(),
+                        "seed {seed}, lane {k}"
+                    );
+                }
+                for t in &slow[..len] {
+                    kinds[if *t == 0.0 {
+                        0
+                    } else if t.is_finite() {
+                        1
+                    } else {
+                        2
+                    }] += 1;
+                }
+            }
+        }
+        assert!(kinds.iter().all(|&n| n > 100), "{kinds:?}");
+        #[cfg(target_arch = "x86_64")]
+        if !std::arch::is_x86_feature_detected!("avx2") {
+            eprintln!("no AVX2 on this CPU: both sides ran one partner at a time");
+        }
+    }
+}
