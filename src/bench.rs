@@ -138,6 +138,9 @@ pub struct BenchResult {
     pub prefetch: Prefetch,
     /// Neighbour-shell thickness (diameters) the engine used.
     pub skin: f64,
+    /// Partners per pair-test instruction on this CPU
+    /// ([`crate::engine::pair_test_lanes`]).
+    pub pair_test_lanes: usize,
     pub start: Start,
     pub flow_step: Option<f64>,
     pub kicks: FlowKicks,
@@ -662,6 +665,7 @@ fn run_with<Q: EventQueue>(opts: &BenchOptions) -> BenchResult {
         neighbours,
         prefetch: opts.prefetch,
         skin,
+        pair_test_lanes: crate::engine::pair_test_lanes(),
         start: initial,
         flow_step: opts.flow_step,
         kicks: opts.kicks,

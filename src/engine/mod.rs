@@ -30,6 +30,7 @@ mod store;
 
 pub use cell_shape::{CellShape, CellShapeRule};
 pub use dynamics::ParticleDynamics;
+pub use partner_lanes::pair_test_lanes;
 pub use records::{
     BadParticle, CollapseReport, CollisionRecord, Counters, ElasticRule, Partner, Record,
     StallReport, State,

@@ -47,6 +47,16 @@ pub(super) fn relative(
     (ki.pos - pj, ki.vel - kj.vel, ki.radius + kj.radius)
 }
 
+/// Partners per pair-test instruction on this CPU: 4 with AVX2, else 1.
+/// The delays have the same bits either way.
+pub fn pair_test_lanes() -> usize {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        return 4;
+    }
+    1
+}
+
 /// Sets `times[k]` (s) to the contact delay of the particle with kinematics
 /// `ki` at time `now` (s) and the partner `entries[k]`, for every entry
 /// (at most [`CHUNK`]): what [`geometry::pair_contact_time_eager`] gives
