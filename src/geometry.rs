@@ -64,7 +64,8 @@ pub fn pair_contact_time_eager(r: glam::DVec3, v: glam::DVec3, sigma: f64) -> f6
 /// [`pair_contact_time_eager`] for four pairs at once, one pair per lane
 /// of `r` (m), `v` (m/s) and `sigma` (m): the same operations in the same
 /// order, none fused, so each lane's delay has the bits the one-pair form
-/// gives.
+/// gives (a zero delay may differ in sign, as `f64::max(-0.0, 0.0)` leaves
+/// it open; no comparison or sum tells them apart).
 ///
 /// # Safety
 ///
@@ -144,6 +145,61 @@ pub fn shell_exit_time(d: glam::DVec3, v: glam::DVec3, delta: f64) -> f64 {
 mod tests {
     use super::*;
     use glam::DVec3;
+
+    /// The four-lane kernel against the one-pair form on the inputs where
+    /// rounding and special values bite: touching, overlapping, at rest,
+    /// grazing, signed zeros, infinities, NaN and huge velocities.
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn four_lane_contact_times_match_the_one_pair_form_on_edge_cases() {
+        if !std::arch::is_x86_feature_detected!("avx2") {
+            eprintln!("no AVX2 on this CPU: the four-lane kernel is never used here");
+            return;
+        }
+        let (inf, nan) = (f64::INFINITY, f64::NAN);
+        let pairs = [
+            (DVec3::new(1.0, 0.0, 0.0), DVec3::new(-1.0, 0.0, 0.0), 1.0),
+            (DVec3::new(0.5, 0.0, 0.0), DVec3::new(-1.0, 0.0, 0.0), 1.0),
+            (DVec3::new(2.0, 0.0, 0.0), DVec3::ZERO, 1.0),
+            (DVec3::new(10.0, 1.0, 0.0), DVec3::new(-1.0, 0.0, 0.0), 1.0),
+            (DVec3::new(-0.0, 0.0, -0.0), DVec3::new(0.0, -0.0, 0.0), 0.0),
+            (DVec3::new(3.0, 0.0, 0.0), DVec3::new(-inf, 0.0, 0.0), 1.0),
+            (DVec3::new(3.0, nan, 0.0), DVec3::new(-1.0, 0.0, 0.0), 1.0),
+            (
+                DVec3::new(3.0, 0.0, 0.0),
+                DVec3::new(-1e300, 1e300, 0.0),
+                1.0,
+            ),
+            (
+                DVec3::new(1e-300, 0.0, 0.0),
+                DVec3::new(-1e-300, 0.0, 0.0),
+                1e-300,
+            ),
+            (DVec3::new(0.0, 2.0, 0.0), DVec3::new(0.0, -3.0, 0.5), 0.7),
+            (DVec3::new(inf, 0.0, 0.0), DVec3::new(-1.0, 0.0, 0.0), 1.0),
+            (DVec3::new(1.0, 1.0, 1.0), DVec3::new(nan, 0.0, 0.0), 1.0),
+        ];
+        for group in pairs.chunks_exact(4) {
+            use std::arch::x86_64::*;
+            let column = |f: &dyn Fn(usize) -> f64| {
+                // SAFETY: `_mm256_setr_pd` only needs AVX, checked above.
+                unsafe { _mm256_setr_pd(f(0), f(1), f(2), f(3)) }
+            };
+            let r = [0, 1, 2].map(|a| column(&|k| group[k].0[a]));
+            let v = [0, 1, 2].map(|a| column(&|k| group[k].1[a]));
+            let sigma = column(&|k| group[k].2);
+            let mut lanes = [0.0; 4];
+            // SAFETY: the CPU has AVX2, checked above.
+            unsafe {
+                _mm256_storeu_pd(lanes.as_mut_ptr(), pair_contact_times_x4(r, v, sigma));
+            }
+            for (k, &(r, v, sigma)) in group.iter().enumerate() {
+                let one = pair_contact_time_eager(r, v, sigma);
+                let same = one.to_bits() == lanes[k].to_bits() || (one == 0.0 && lanes[k] == 0.0);
+                assert!(same, "{r:?} {v:?} {sigma}: {one} against {}", lanes[k]);
+            }
+        }
+    }
 
     #[test]
     fn head_on_pair_time_is_gap_over_speed() {

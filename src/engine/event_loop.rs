@@ -527,7 +527,9 @@ impl<Q: EventQueue> Engine<Q> {
 
     /// Whether a full cell scan finds, on average, at least
     /// [`CHUNK_MIN_CANDIDATES`] candidates and every pair is tested in
-    /// full (no prediction horizon). Below that, gathering them costs more
+    /// full (no prediction horizon). An estimate: it counts slots, free
+    /// ones too, and applies to the 9-cell scans after a crossing as well
+    /// (at φ = 0.3 restricting it to full scans changed nothing). Below that, gathering them costs more
     /// than testing them a chunk at a time saves (`edpm bench --n 10976`
     /// under callgrind: 1.2 % more instructions per collision at φ = 0.1,
     /// about 5 candidates, and 11 % fewer at φ = 0.3, about 15).
@@ -790,8 +792,8 @@ impl Gather for PairSearch<'_> {
 
     /// Takes the partners `entries` into account in order, their contact
     /// delays computed a chunk at a time ([`partner_lanes`]): the same
-    /// result as taking each. A single entry is taken alone (a chunk's
-    /// set-up costs more than the pair test).
+    /// result as taking each. Fewer than four entries are taken one at a
+    /// time (a chunk's set-up costs more than their pair tests).
     #[inline(always)]
     fn take_all(&mut self, entries: &[u32]) {
         if self.bounded || self.soft_i || entries.len() < 4 {
@@ -847,11 +849,14 @@ mod tests {
     use rand_xoshiro::Xoshiro256PlusPlus;
 
     use super::super::pair_sweep::PairSweep;
+    use super::super::partner_lanes;
     use super::super::{Engine, EngineConfig, NeighbourSearch};
+    use super::PairSearch;
     use crate::collision::ContactParams;
     use crate::domain::{AxisBoundary, Domain};
     use crate::materials::MaterialTable;
     use crate::particles::NewParticle;
+    use crate::prefetch::Gather;
     use crate::queue::CalendarQueue;
 
     /// Random velocities on a jittered lattice of spacing 2.2 r (no overlap;
@@ -861,6 +866,21 @@ mod tests {
         axes: [AxisBoundary; 3],
         counts: [usize; 3],
         seed: u64,
+    ) -> Engine<CalendarQueue> {
+        let config = EngineConfig {
+            neighbours: NeighbourSearch::Cells,
+            skin: 0.1,
+            ..Default::default()
+        };
+        lattice_engine_with(axes, counts, seed, config)
+    }
+
+    /// [`lattice_engine`] with the engine settings `config`.
+    fn lattice_engine_with(
+        axes: [AxisBoundary; 3],
+        counts: [usize; 3],
+        seed: u64,
+        config: EngineConfig,
     ) -> Engine<CalendarQueue> {
         let (r, spacing) = (0.5, 1.1);
         let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
@@ -905,13 +925,44 @@ mod tests {
             axes,
             outlet: None,
         };
-        let config = EngineConfig {
-            neighbours: NeighbourSearch::Cells,
-            skin: 0.1,
-            ..Default::default()
-        };
         let materials = MaterialTable::single(1.0, ContactParams::ELASTIC_SMOOTH);
         Engine::new(domain, materials, config, &particles).expect("engine")
+    }
+
+    /// A search that tests its partners a chunk at a time (`take_all`)
+    /// keeps the partner and delay that taking each entry in turn keeps,
+    /// over lists several chunks long (a skin of one diameter: about 80
+    /// partners) and short ones, with periodic images.
+    #[test]
+    fn chunked_and_one_by_one_searches_keep_the_same_pair() {
+        for (skin, seed) in [(1.0, 3), (0.05, 4)] {
+            let config = EngineConfig {
+                neighbours: NeighbourSearch::Lists,
+                skin,
+                ..Default::default()
+            };
+            let engine = lattice_engine_with([AxisBoundary::Periodic; 3], [9, 8, 10], seed, config);
+            let mut longest = 0;
+            for i in 0..engine.slots() {
+                let list = engine.lists.list(i);
+                longest = longest.max(list.len());
+                let ki = engine.kin_now(i);
+                let mut chunked = PairSearch::new(&engine, i, ki, f64::INFINITY);
+                chunked.take_all(list);
+                let mut one_by_one = PairSearch::new(&engine, i, ki, f64::INFINITY);
+                for &entry in list {
+                    one_by_one.take(entry);
+                }
+                let (a, b) = (chunked.found, one_by_one.found);
+                assert_eq!(a.best_entry, b.best_entry, "skin {skin}, slot {i}");
+                assert_eq!(a.best.to_bits(), b.best.to_bits(), "skin {skin}, slot {i}");
+            }
+            // The long lists span several chunks.
+            assert!(
+                skin < 0.5 || longest > 3 * partner_lanes::CHUNK,
+                "{longest}"
+            );
+        }
     }
 
     /// The pair sweep gives every particle the pair its own search finds

@@ -12,7 +12,8 @@ use crate::neighbours;
 /// Partners handed to [`contact_delays`] at once.
 pub(super) const CHUNK: usize = 16;
 
-/// [`Partners::shift_lanes`].
+/// The image shifts (m) padded to four lanes, one row per code an entry
+/// can hold (see [`Partners::shift_lanes`]).
 pub(super) type ShiftLanes = [[f64; 4]; 1 << (32 - neighbours::INDEX_BITS)];
 
 /// The image shifts `shifts` (m) as [`Partners::shift_lanes`].
@@ -27,7 +28,8 @@ pub(super) struct Partners<'a> {
     pub(super) kin: &'a [Kinematics],
     pub(super) shifts: &'a [DVec3; 27],
     /// `shifts` padded to four lanes, for whole-vector loads, and to every
-    /// code an entry can hold (those past 26 are never used).
+    /// code an entry can hold: codes 27–31 name no image and are never
+    /// stored (their rows are zero; `shifts` would panic on them).
     pub(super) shift_lanes: &'a ShiftLanes,
 }
 
@@ -69,6 +71,7 @@ pub(super) fn contact_delays(
     partners: &Partners,
     times: &mut [f64; CHUNK],
 ) {
+    assert!(entries.len() <= CHUNK);
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
         // SAFETY: the CPU has AVX2, checked just above.
@@ -104,7 +107,6 @@ fn contact_delays_avx2(
     partners: &Partners,
     times: &mut [f64; CHUNK],
 ) {
-    assert!(entries.len() <= CHUNK);
     let centre = Centre::new(ki, now);
     let (groups, rest) = entries.as_chunks::<4>();
     for (group, out) in groups.iter().zip(times.as_chunks_mut::<4>().0) {
@@ -264,7 +266,8 @@ mod tests {
                 let (mut fast, mut slow) = ([-1.0; CHUNK], [-1.0; CHUNK]);
                 contact_delays(&ki, 0.75, chunk, &partners, &mut fast);
                 contact_delays_one_by_one(&ki, 0.75, chunk, &partners, &mut slow);
-                for k in 0..len {
+                // Every slot: those past `len` must stay untouched too.
+                for k in 0..CHUNK {
                     assert_eq!(
                         fast[k].to_bits(),
                         slow[k].to_bits(),
