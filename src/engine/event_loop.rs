@@ -527,12 +527,13 @@ impl<Q: EventQueue> Engine<Q> {
 
     /// Whether a full cell scan finds, on average, at least
     /// [`CHUNK_MIN_CANDIDATES`] candidates and every pair is tested in
-    /// full (no prediction horizon). An estimate: it counts slots, free
-    /// ones too, and applies to the 9-cell scans after a crossing as well
-    /// (at φ = 0.3 restricting it to full scans changed nothing). Below that, gathering them costs more
+    /// full (no prediction horizon). Below that, gathering them costs more
     /// than testing them a chunk at a time saves (`edpm bench --n 10976`
     /// under callgrind: 1.2 % more instructions per collision at φ = 0.1,
-    /// about 5 candidates, and 11 % fewer at φ = 0.3, about 15).
+    /// about 5 candidates, and 11 % fewer at φ = 0.3, about 15). An
+    /// estimate: it counts slots, free ones too, and applies to the 9-cell
+    /// scans after a crossing as well (at φ = 0.3 restricting it to full
+    /// scans changed nothing).
     #[inline]
     fn cell_candidates_fill_chunks(&self) -> bool {
         let cells: usize = self.cells.dims().iter().product();
@@ -754,7 +755,6 @@ impl<'a> PairSearch<'a> {
             soft_i: engine.is_soft[i],
             partners: Partners {
                 kin: &engine.kin,
-                shifts: &engine.image_shift,
                 shift_lanes: &engine.image_shift_lanes,
             },
             is_soft: &engine.is_soft,

@@ -26,10 +26,9 @@ pub(super) fn shift_lanes(shifts: &[DVec3; 27]) -> ShiftLanes {
 #[derive(Clone, Copy)]
 pub(super) struct Partners<'a> {
     pub(super) kin: &'a [Kinematics],
-    pub(super) shifts: &'a [DVec3; 27],
-    /// `shifts` padded to four lanes, for whole-vector loads, and to every
-    /// code an entry can hold: codes 27–31 name no image and are never
-    /// stored (their rows are zero; `shifts` would panic on them).
+    /// The image shifts padded to four lanes, for whole-vector loads, and
+    /// to every code an entry can hold: codes 27–31 name no image and are
+    /// never stored (their rows are zero).
     pub(super) shift_lanes: &'a ShiftLanes,
 }
 
@@ -45,12 +44,14 @@ pub(super) fn relative(
 ) -> (DVec3, DVec3, f64) {
     let (j, code) = neighbours::unpack(entry);
     let kj = &partners.kin[j as usize];
-    let pj = kj.position_at(now) + partners.shifts[code as usize];
+    let [x, y, z, _] = partners.shift_lanes[code as usize];
+    let pj = kj.position_at(now) + DVec3::new(x, y, z);
     (ki.pos - pj, ki.vel - kj.vel, ki.radius + kj.radius)
 }
 
 /// Partners per pair-test instruction on this CPU: 4 with AVX2, else 1.
 /// The delays have the same bits either way.
+#[inline]
 pub fn pair_test_lanes() -> usize {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
@@ -73,8 +74,8 @@ pub(super) fn contact_delays(
 ) {
     assert!(entries.len() <= CHUNK);
     #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU has AVX2, checked just above.
+    if pair_test_lanes() == 4 {
+        // SAFETY: the CPU has AVX2 (`pair_test_lanes`).
         unsafe { contact_delays_avx2(ki, now, entries, partners, times) };
         return;
     }
@@ -257,7 +258,6 @@ mod tests {
             let shift_lanes = shift_lanes(&shifts);
             let partners = Partners {
                 kin: &kin,
-                shifts: &shifts,
                 shift_lanes: &shift_lanes,
             };
             // Every chunk length, so that short last groups are covered.
@@ -286,8 +286,7 @@ mod tests {
             }
         }
         assert!(kinds.iter().all(|&n| n > 100), "{kinds:?}");
-        #[cfg(target_arch = "x86_64")]
-        if !std::arch::is_x86_feature_detected!("avx2") {
+        if pair_test_lanes() == 1 {
             eprintln!("no AVX2 on this CPU: both sides ran one partner at a time");
         }
     }
