@@ -11,7 +11,7 @@
 
 use glam::DVec3;
 
-use crate::prefetch::prefetch;
+use crate::prefetch::{prefetch, prefetch_at};
 
 /// Marks an empty link in the cell grid.
 pub const NONE: u32 = u32::MAX;
@@ -87,7 +87,7 @@ impl NeighbourLists {
     /// [`crate::prefetch`]).
     #[inline]
     pub fn prefetch(&self, i: usize) {
-        prefetch(&self.len[i]);
+        prefetch_at(&self.len, i);
         let list = &self.entries[i * self.stride..(i + 1) * self.stride];
         for k in (0..list.len()).step_by(LINE_ENTRIES) {
             prefetch(&list[k]);
@@ -523,8 +523,8 @@ impl CellGrid {
     /// Requests slot i's links (what moving it reads first).
     #[inline(always)]
     pub fn prefetch_slot(&self, i: usize) {
-        prefetch(&self.links[i]);
-        prefetch(&self.next[i]);
+        prefetch_at(&self.links, i);
+        prefetch_at(&self.next, i);
     }
 
     /// Heap memory of the grid (bytes).

@@ -14,7 +14,7 @@ use super::{
 use crate::domain::IDENTITY_IMAGE;
 use crate::geometry;
 use crate::neighbours;
-use crate::prefetch::{Batch, Gather, prefetch};
+use crate::prefetch::{Batch, Gather, prefetch_at};
 use crate::queue::EventQueue;
 
 /// Stall watchdog: a window is `max(STALL_MIN_WINDOW, STALL_EVENTS_PER_PARTICLE
@@ -95,14 +95,14 @@ impl<Q: EventQueue> Engine<Q> {
     /// mode) or its shell and neighbour list (lists mode).
     #[inline(always)]
     fn prefetch_particle(&self, i: usize) {
-        prefetch(&self.event_state[i]);
-        prefetch(&self.kin[i]);
-        prefetch(&self.face_mask[i]);
+        prefetch_at(&self.event_state, i);
+        prefetch_at(&self.kin, i);
+        prefetch_at(&self.face_mask, i);
         if self.config.neighbours == NeighbourSearch::Cells {
-            prefetch(&self.cell_state[i]);
+            prefetch_at(&self.cell_state, i);
             self.cells.prefetch_slot(i);
         } else {
-            prefetch(&self.shell_centres[i]);
+            prefetch_at(&self.shell_centres, i);
             self.lists.prefetch(i);
         }
     }
@@ -767,7 +767,7 @@ impl Gather for PairSearch<'_> {
 
     #[inline(always)]
     fn prefetch(&self, entry: u32) {
-        prefetch(&self.partners.kin[neighbours::unpack(entry).0 as usize]);
+        prefetch_at(self.partners.kin, neighbours::unpack(entry).0 as usize);
     }
 
     /// Takes the partner `entry` into account (Eq. 45).

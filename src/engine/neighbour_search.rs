@@ -8,7 +8,7 @@ use super::store::{EventKind, Kinematics, Scheduled, rounded_reach};
 use super::{Engine, NeighbourSearch, Record};
 use crate::domain::{AxisBoundary, Domain, Face, IDENTITY_IMAGE, mirror_code};
 use crate::neighbours::{self, NeighbourLists};
-use crate::prefetch::{Batch, Gather, prefetch};
+use crate::prefetch::{Batch, Gather, prefetch_at};
 use crate::queue::EventQueue;
 
 impl<Q: EventQueue> Engine<Q> {
@@ -273,7 +273,7 @@ impl Gather for ShellLinker<'_> {
 
     #[inline(always)]
     fn prefetch(&self, (j, _): Self::Item) {
-        prefetch(&self.centres[j as usize]);
+        prefetch_at(self.centres, j as usize);
     }
 
     #[inline(always)]

@@ -35,7 +35,7 @@ use std::hash::{BuildHasherDefault, Hasher};
 
 use super::EventQueue;
 use super::indexed_heap::{self, Entry};
-use crate::prefetch::prefetch;
+use crate::prefetch::prefetch_at;
 
 /// Target mean number of events per bucket.
 const EVENTS_PER_BUCKET: f64 = 2.0;
@@ -184,7 +184,10 @@ impl CalendarQueue {
     /// the origin map to 0 and times too far ahead to [`MAX_BUCKET`].
     #[inline(always)]
     fn bucket_of(&self, t: f64) -> u64 {
-        ((t - self.origin) * self.inv_width).min(MAX_BUCKET) as u64
+        // Clamped into [0, MAX_BUCKET] first, so that the signed conversion
+        // (one instruction and a check, where the unsigned one is a longer
+        // sequence) gives the same numbers.
+        ((t - self.origin) * self.inv_width).clamp(0.0, MAX_BUCKET) as i64 as u64
     }
 
     /// Places a new event for a particle that has none.
@@ -206,7 +209,7 @@ impl CalendarQueue {
     }
 
     /// Puts finite event `e` with bucket number `a` where it belongs.
-    #[inline]
+    #[inline(always)]
     fn place(&mut self, e: Entry, a: u64) {
         let nb = self.lines.len() as u64;
         let slot = &mut self.slots[e.i as usize];
@@ -250,9 +253,20 @@ impl CalendarQueue {
     #[inline]
     fn take(&mut self, i: u32) {
         let slot = self.slots[i as usize];
+        if self.unlink(i, slot) {
+            self.slots[i as usize] = NO_SLOT;
+            self.len -= 1;
+        }
+    }
+
+    /// Takes particle `i`'s event (`slot`, its current slot) out of its
+    /// container, leaving the slot itself and `len` to the caller; false
+    /// when it had none.
+    #[inline(always)]
+    fn unlink(&mut self, i: u32, slot: Slot) -> bool {
         let pos = slot.pos as usize;
         match slot.loc {
-            ABSENT => return,
+            ABSENT => return false,
             HEAP => {
                 let slots = &mut self.slots;
                 indexed_heap::remove_at(&mut self.heap, pos, |j, k| {
@@ -287,8 +301,7 @@ impl CalendarQueue {
                 self.spill_len -= 1;
             }
         }
-        self.slots[i as usize] = NO_SLOT;
-        self.len -= 1;
+        true
     }
 
     /// Refills the empty heap with the next bucket of events. Returns false
@@ -502,6 +515,14 @@ impl EventQueue for CalendarQueue {
                 self.slots[iu].t = t;
                 return;
             }
+            // Into another container (the common case: the event just
+            // processed leaves the heap for a ring bucket). `place`
+            // rewrites the whole slot.
+            if !self.unlink(i, slot) {
+                self.len += 1;
+            }
+            self.place(Entry { t, i }, a);
+            return;
         }
         self.take(i);
         self.insert(i, t);
@@ -531,12 +552,12 @@ impl EventQueue for CalendarQueue {
             .take(indexed_heap::ARITY)
             .reduce(|a, b| if b.before(*a) { b } else { a })
         {
-            prefetch(&self.slots[second.i as usize]);
+            prefetch_at(&self.slots, second.i as usize);
             f(second.i);
         } else if !self.lines.is_empty() {
             let line = &self.lines[((self.cur + 1) & (self.nb() - 1)) as usize];
             for &i in &line.idx[..line.len as usize] {
-                prefetch(&self.slots[i as usize]);
+                prefetch_at(&self.slots, i as usize);
                 f(i);
             }
         }

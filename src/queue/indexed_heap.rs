@@ -102,7 +102,7 @@ pub(crate) fn push(heap: &mut Vec<Entry>, e: Entry, place: impl FnMut(u32, usize
 }
 
 /// Removes the entry at `k` (which must be in bounds) and restores heap order.
-#[inline]
+#[inline(always)]
 pub(crate) fn remove_at(heap: &mut Vec<Entry>, k: usize, place: impl FnMut(u32, usize)) {
     let removed = heap[k];
     let Some(last) = heap.pop() else { return };
