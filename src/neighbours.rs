@@ -697,8 +697,9 @@ impl CellGrid {
     ) {
         let rows = self.block_rows(c, lo, hi);
         let xs = &rows.xs[..rows.x_count];
-        // Bit 3·row + k: cell xs[k] of the row.
-        let mut occupied = 0u32;
+        // Bit 4·row + k: cell xs[k] of the row (4 bits a row, so that row
+        // and cell come from shifts).
+        let mut occupied = 0u64;
         for (row, &base) in rows.base[..rows.count].iter().enumerate() {
             let bits = if rows.x_adjacent {
                 self.occupancy_run((base + xs[0].0) as usize, xs.len())
@@ -707,12 +708,12 @@ impl CellGrid {
                     bits | (self.occupancy_run((base + x) as usize, 1) << k)
                 })
             };
-            occupied |= bits << (3 * row);
+            occupied |= u64::from(bits) << (4 * row);
         }
         while occupied != 0 {
             let bit = occupied.trailing_zeros() as usize;
             occupied &= occupied - 1;
-            let (row, k) = (bit / 3, bit % 3);
+            let (row, k) = (bit >> 2, bit & 3);
             let (x, ix) = xs[k];
             let cell = (rows.base[row] + x) as usize;
             let image = rows.exact.then_some(ix + u32::from(rows.image[row]));
@@ -758,14 +759,13 @@ impl CellGrid {
                 rows.xs[k] = ((c[0] as i64 + offset) as u32, 1);
                 rows.x_count += 1;
             }
-            let stride_z = d[0] * d[1];
+            let (stride_y, stride_z) = (d[0] as i64, (d[0] * d[1]) as i64);
+            let row_zero = (c[1] * d[0] + c[2] * d[0] * d[1]) as i64;
+            // Image (1, 1, 1): no shift.
+            rows.image = [3 + 9; 9];
             for dz in range[2].0..=range[2].1 {
                 for dy in range[1].0..=range[1].1 {
-                    let y = (c[1] as i64 + dy) as usize;
-                    let z = (c[2] as i64 + dz) as usize;
-                    rows.base[rows.count] = (y * d[0] + z * stride_z) as u32;
-                    // Image (1, 1, 1): no shift.
-                    rows.image[rows.count] = 3 + 9;
+                    rows.base[rows.count] = (row_zero + dy * stride_y + dz * stride_z) as u32;
                     rows.count += 1;
                 }
             }
