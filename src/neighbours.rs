@@ -976,12 +976,16 @@ mod tests {
     #[test]
     fn block_scans_visit_occupied_cells_in_order_after_moves() {
         use rand::{RngExt, SeedableRng};
-        // Periodic axes with 1, 2 and 3+ cells, walls, flat and tall rows.
+        // Periodic axes with 1, 2 and 3+ cells, walls, flat wall axes, and
+        // flat and tall rows.
         let grids = [
             ([6.0, 4.0, 3.0], [true, false, true]),
             ([2.0, 3.0, 1.0], [true, true, true]),
             ([9.0, 1.0, 5.0], [false, true, false]),
             ([11.0, 7.0, 4.0], [true, true, true]),
+            // A flat wall axis (a planar run's z), and one along x.
+            ([7.0, 5.0, 1.0], [true, false, false]),
+            ([1.0, 6.0, 5.0], [false, true, true]),
         ];
         let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(5);
         for (size, periodic) in grids {

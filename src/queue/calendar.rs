@@ -484,6 +484,7 @@ impl EventQueue for CalendarQueue {
     }
 
     fn set(&mut self, i: u32, t: f64) {
+        debug_assert!(!t.is_nan(), "event time of particle {i} is NaN");
         let iu = i as usize;
         if iu >= self.slots.len() {
             self.slots.resize(iu + 1, NO_SLOT);
@@ -515,9 +516,9 @@ impl EventQueue for CalendarQueue {
                 self.slots[iu].t = t;
                 return;
             }
-            // Into another container (the common case: the event just
-            // processed leaves the heap for a ring bucket). `place`
-            // rewrites the whole slot.
+            // Into another container, or a first event (the common case:
+            // the event just processed leaves the heap for a ring bucket).
+            // `place` rewrites the whole slot.
             if !self.unlink(i, slot) {
                 self.len += 1;
             }
@@ -653,6 +654,124 @@ mod tests {
             let b = exp(rng);
             q.set(j, t + b);
         }
+    }
+
+    /// Bucket numbers by the signed conversion after a clamp are those of
+    /// the saturating unsigned conversion after `min`, for every time the
+    /// queue accepts (never NaN): before the origin, −0, huge and infinite.
+    #[test]
+    fn bucket_numbers_match_the_saturating_form() {
+        let mut q = CalendarQueue::with_capacity(4);
+        for (origin, inv_width) in [(0.0, 1.0), (5.0, 1.0), (0.0, 1e300), (5.0, 1e-300)] {
+            (q.origin, q.inv_width) = (origin, inv_width);
+            let times = [
+                f64::NEG_INFINITY,
+                -1e308,
+                -0.0,
+                0.0,
+                origin - 1e-9,
+                origin,
+                origin + 0.5,
+                MAX_BUCKET / inv_width,
+                2.0 * MAX_BUCKET / inv_width,
+                1e308,
+                f64::MAX,
+                f64::INFINITY,
+            ];
+            for t in times {
+                let saturating = ((t - origin) * inv_width).min(MAX_BUCKET) as u64;
+                assert_eq!(
+                    q.bucket_of(t),
+                    saturating,
+                    "t {t}, origin {origin}, 1/width {inv_width}"
+                );
+            }
+        }
+    }
+
+    /// Every event's slot points at an entry of its container that holds
+    /// that particle, and the counts agree with the containers.
+    fn assert_consistent(q: &CalendarQueue) {
+        let mut count = 0;
+        for (i, slot) in q.slots.iter().enumerate() {
+            let i = i as u32;
+            let pos = slot.pos as usize;
+            match slot.loc {
+                ABSENT => continue,
+                HEAP => assert_eq!(q.heap[pos].i, i),
+                OVERFLOW => assert_eq!(q.overflow[pos].i, i),
+                INFINITE => assert_eq!(q.infinite[pos], i),
+                b if slot.pos == IN_LINE => {
+                    let line = &q.lines[b as usize];
+                    assert!(line.idx[..line.len as usize].contains(&i), "particle {i}");
+                }
+                b => assert_eq!(q.spills[&b][pos], i),
+            }
+            count += 1;
+        }
+        assert_eq!(count, q.len);
+        let in_lines: usize = q.lines.iter().map(|l| l.len as usize).sum();
+        let spilled: usize = q.spills.values().map(Vec::len).sum();
+        assert_eq!(q.spill_len, spilled);
+        assert_eq!(q.ring_len, in_lines + spilled);
+        assert_eq!(
+            q.len,
+            q.heap.len() + q.ring_len + q.overflow.len() + q.infinite.len()
+        );
+    }
+
+    /// Events moved by `set` out of a spilled ring bucket, to the heap,
+    /// another bucket, the overflow, `+∞` and back, keep every slot and
+    /// count right, and the queue still gives them in order.
+    #[test]
+    fn spilled_events_move_between_containers() {
+        let n = 64u32;
+        let mut q = CalendarQueue::with_capacity(n as usize);
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(17);
+        for i in 0..n {
+            q.set(i, 1.0 + rng.random::<f64>());
+        }
+        assert!(q.peek_min().is_some());
+        let width = 1.0 / q.inv_width;
+        // 20 events in one bucket a few ahead of the cursor: 13 spill.
+        // Particle n gets its first event there (no container to leave).
+        let crowded = q.origin + (q.cur as f64 + 3.5) * width;
+        for i in (0..19).chain([n]) {
+            q.set(i, crowded);
+        }
+        assert_eq!(q.len(), n as usize + 1);
+        assert!(q.spill_len > 0, "no spill");
+        assert_consistent(&q);
+        let now = q.origin + q.cur as f64 * width;
+        let far = q.origin + (q.cur + 10 * q.nb()) as f64 * width;
+        let targets = [
+            now,
+            crowded + 2.0 * width,
+            far,
+            f64::INFINITY,
+            crowded + 0.25 * width,
+        ];
+        for (step, &t) in targets.iter().enumerate() {
+            for i in (0..20).filter(|i| (i + step as u32) % 3 != 0) {
+                q.set(i, t);
+                assert_consistent(&q);
+            }
+        }
+        // Drained in order, and against the reference queue's order.
+        let mut reference: Vec<(f64, u32)> = q
+            .slots
+            .iter()
+            .enumerate()
+            .filter(|(_, s)| s.loc != ABSENT)
+            .map(|(i, s)| (s.t, i as u32))
+            .collect();
+        reference.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        for &(t, i) in &reference {
+            assert_eq!(q.peek_min(), Some((t, i)));
+            q.remove(i);
+            assert_consistent(&q);
+        }
+        assert!(q.is_empty());
     }
 
     /// The bucket width follows the event density when it changes by 10^±4
