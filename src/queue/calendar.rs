@@ -752,7 +752,7 @@ mod tests {
             crowded + 0.25 * width,
         ];
         for (step, &t) in targets.iter().enumerate() {
-            for i in (0..20).filter(|i| (i + step as u32) % 3 != 0) {
+            for i in (0..20).filter(|i| !(i + step as u32).is_multiple_of(3)) {
                 q.set(i, t);
                 assert_consistent(&q);
             }
