@@ -7,16 +7,7 @@
 /// faults and changes no state (a no-op off x86-64).
 #[inline(always)]
 pub fn prefetch<T>(value: &T) {
-    #[cfg(target_arch = "x86_64")]
-    // SAFETY: a prefetch is a hint: it reads no data into the program,
-    // cannot fault, and `value` is a valid reference besides.
-    unsafe {
-        std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(
-            (value as *const T).cast(),
-        );
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    let _ = value;
+    prefetch_address(value as *const T);
 }
 
 /// Starts loading the cache line of `items[i]`, without a bounds check:
@@ -24,16 +15,20 @@ pub fn prefetch<T>(value: &T) {
 /// (a prefetch never faults), so the hint costs no compare and branch.
 #[inline(always)]
 pub fn prefetch_at<T>(items: &[T], i: usize) {
+    prefetch_address(items.as_ptr().wrapping_add(i));
+}
+
+/// The hint itself, for any address: it is never read.
+#[inline(always)]
+fn prefetch_address<T>(address: *const T) {
     #[cfg(target_arch = "x86_64")]
-    // SAFETY: as in `prefetch`; `wrapping_add` makes no in-bounds claim,
-    // and the address is only ever hinted, never read.
+    // SAFETY: a prefetch is a hint: it reads no data into the program and
+    // cannot fault, whatever the address.
     unsafe {
-        std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(
-            items.as_ptr().wrapping_add(i).cast(),
-        );
+        std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(address.cast());
     }
     #[cfg(not(target_arch = "x86_64"))]
-    let _ = (items, i);
+    let _ = address;
 }
 
 /// A consumer of candidates (pair partners, shell neighbours) that can

@@ -190,24 +190,6 @@ impl CalendarQueue {
         ((t - self.origin) * self.inv_width).clamp(0.0, MAX_BUCKET) as i64 as u64
     }
 
-    /// Places a new event for a particle that has none.
-    #[inline]
-    fn insert(&mut self, i: u32, t: f64) {
-        if t == f64::INFINITY {
-            self.slots[i as usize] = Slot {
-                t,
-                loc: INFINITE,
-                pos: self.infinite.len() as u32,
-            };
-            self.infinite.push(i);
-        } else if self.staged {
-            self.push_overflow(Entry { t, i });
-        } else {
-            self.place(Entry { t, i }, self.bucket_of(t));
-        }
-        self.len += 1;
-    }
-
     /// Puts finite event `e` with bucket number `a` where it belongs.
     #[inline(always)]
     fn place(&mut self, e: Entry, a: u64) {
@@ -238,6 +220,16 @@ impl CalendarQueue {
             self.overflow_min = self.overflow_min.min(a);
             self.push_overflow(e);
         }
+    }
+
+    /// Puts particle `i`'s event at `+∞` into its list.
+    fn push_infinite(&mut self, i: u32) {
+        self.slots[i as usize] = Slot {
+            t: f64::INFINITY,
+            loc: INFINITE,
+            pos: self.infinite.len() as u32,
+        };
+        self.infinite.push(i);
     }
 
     fn push_overflow(&mut self, e: Entry) {
@@ -497,8 +489,9 @@ impl EventQueue for CalendarQueue {
             self.stats = Stats::default();
         }
         let slot = self.slots[iu];
-        if !self.staged && t < f64::INFINITY {
-            let a = self.bucket_of(t);
+        // Staged (after `clear`) and infinite events have no bucket yet.
+        let bucket = (!self.staged && t < f64::INFINITY).then(|| self.bucket_of(t));
+        if let Some(a) = bucket {
             if slot.loc == HEAP && a <= self.cur {
                 self.slots[iu].t = t;
                 let slots = &mut self.slots;
@@ -516,17 +509,18 @@ impl EventQueue for CalendarQueue {
                 self.slots[iu].t = t;
                 return;
             }
-            // Into another container, or a first event (the common case:
-            // the event just processed leaves the heap for a ring bucket).
-            // `place` rewrites the whole slot.
-            if !self.unlink(i, slot) {
-                self.len += 1;
-            }
-            self.place(Entry { t, i }, a);
-            return;
         }
-        self.take(i);
-        self.insert(i, t);
+        // Into another container, or a first event (the common case: the
+        // event just processed leaves the heap for a ring bucket). Each
+        // branch below rewrites the whole slot.
+        if !self.unlink(i, slot) {
+            self.len += 1;
+        }
+        match bucket {
+            Some(a) => self.place(Entry { t, i }, a),
+            None if t == f64::INFINITY => self.push_infinite(i),
+            None => self.push_overflow(Entry { t, i }),
+        }
     }
 
     fn remove(&mut self, i: u32) {
