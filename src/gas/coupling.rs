@@ -927,10 +927,10 @@ mod tests {
         let mut h = gas(grid.clone(), PorosityMapping::VolumeWeighting);
         let mut face_solids: [Vec<f64>; 3] = std::array::from_fn(|a| vec![0.0; grid.faces(a)]);
         scatter_sinks(&stencils, views, &drag, &mut h, &mut face_solids);
-        for a in 0..3 {
-            out.push(bits(&h.drag_alpha[a]));
-            out.push(bits(&h.drag_beta[a]));
-            out.push(bits(&face_solids[a]));
+        for ((alpha, beta), mapped) in h.drag_alpha.iter().zip(&h.drag_beta).zip(&face_solids) {
+            out.push(bits(alpha));
+            out.push(bits(beta));
+            out.push(bits(mapped));
         }
         let mut kicks = Vec::new();
         particle_kicks(
