@@ -103,7 +103,8 @@ pub fn hoomans_3d_to_2d(eps_s_3d: f64) -> f64 {
 /// the index along the axis already multiplied by the stride of the axis in
 /// the linear index. Offsets are 32-bit: with `S` = [`MAX_SPAN`] a value is
 /// 80 bytes; the coupling keeps six per particle, with `S` = 2 wherever no
-/// particle's cube is wider than a cell (32 bytes each).
+/// particle's cube is wider than a cell (32 bytes each; planar beds then
+/// keep their products instead, `coupling::PlanarStencil`).
 #[derive(Clone, Copy, Debug)]
 pub struct AxisWeights<const S: usize = MAX_SPAN> {
     len: usize,
