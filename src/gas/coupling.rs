@@ -148,65 +148,38 @@ impl<const S: usize> Stencil for ParticleStencil<S> {
     }
 }
 
-/// (linear index, weight) pairs of one array, at most `M`.
+/// Most entries of a [`PlanarStencil`] list: two cells (or faces) along
+/// x and along y.
+const PLANAR_ENTRIES: usize = 4;
+
+/// (linear index, weight) pairs of one array, at most [`PLANAR_ENTRIES`].
 #[derive(Clone, Copy, Debug)]
-struct FlatWeights<const M: usize> {
+struct FlatWeights {
     len: u32,
-    index: [u32; M],
-    weight: [f64; M],
+    index: [u32; PLANAR_ENTRIES],
+    weight: [f64; PLANAR_ENTRIES],
 }
 
-impl<const M: usize> FlatWeights<M> {
-    const EMPTY: FlatWeights<M> = FlatWeights {
+impl FlatWeights {
+    const EMPTY: FlatWeights = FlatWeights {
         len: 0,
-        index: [0; M],
-        weight: [0.0; M],
+        index: [0; PLANAR_ENTRIES],
+        weight: [0.0; PLANAR_ENTRIES],
     };
 
-    /// The entries of `x` × `y` × `z` (offsets along each axis; `strides`
-    /// of the array), z outer and x inner, weights `(w_z w_y) w_x`: what
-    /// [`ParticleStencil::for_each`] visits. `z = None`: the single z cell
-    /// of a planar bed, offset 0 and weight 1 (so `w_z w_y = w_y` exactly).
+    /// The entries of `x` × `y` (offsets along each axis; `stride_y` of
+    /// the array), y outer and x inner, weights `w_y w_x`.
     #[inline(always)]
-    fn fill_product(
-        &mut self,
-        [x, y]: [&AxisWeights<2>; 2],
-        z: Option<&AxisWeights<2>>,
-        strides: [usize; 3],
-    ) {
-        self.len = 0;
-        match z {
-            None => self.push_plane(x, y, 0, None, strides[1]),
-            Some(z) => {
-                let (oz, wz) = z.entries();
-                for (&l, &w3) in oz.iter().zip(wz) {
-                    self.push_plane(x, y, l as usize * strides[2], Some(w3), strides[1]);
-                }
-            }
-        }
-    }
-
-    /// Appends the entries of one z plane at offset `base_z` and weight
-    /// `w3` (the planar case skips the product `1 · w_y`, which is exact).
-    #[inline(always)]
-    fn push_plane(
-        &mut self,
-        x: &AxisWeights<2>,
-        y: &AxisWeights<2>,
-        base_z: usize,
-        w3: Option<f64>,
-        stride_y: usize,
-    ) {
+    fn fill_product(&mut self, x: &AxisWeights<2>, y: &AxisWeights<2>, stride_y: usize) {
         let (ox, wx) = x.entries();
         let (oy, wy) = y.entries();
-        let mut k = self.len as usize;
+        let mut k = 0;
         for (&j, &w2) in oy.iter().zip(wy) {
-            let base = base_z + j as usize * stride_y;
-            let w23 = w3.map_or(w2, |w3| w3 * w2);
+            let base = j as usize * stride_y;
             for (&i, &w1) in ox.iter().zip(wx) {
                 debug_assert!(u32::try_from(base + i as usize).is_ok());
                 self.index[k] = (base + i as usize) as u32;
-                self.weight[k] = w23 * w1;
+                self.weight[k] = w2 * w1;
                 k += 1;
             }
         }
@@ -214,48 +187,37 @@ impl<const M: usize> FlatWeights<M> {
     }
 }
 
-/// The stencil of a particle whose cube fits a gas cell, multiplied out:
-/// the cells and the faces normal to each of the `A` velocity axes it
-/// touches, at most `M` of each, with the weights of [`ParticleStencil`]
-/// in the order its `for_each` visits them (the same bits), so that each
-/// pass is one short loop. Planar beds: [`PlanarStencil`]; 3D grids:
-/// [`SpatialStencil`].
+/// The stencil of a particle in a planar bed whose cube fits a gas cell,
+/// multiplied out: the cells and the faces normal to x and to y it
+/// touches, with the weights of [`ParticleStencil`] in the order its
+/// `for_each` visits them (the same bits), so that each pass is one short
+/// loop (176 bytes a slot against 200, `Option` included).
 #[derive(Clone, Copy, Debug)]
-struct FlatStencil<const M: usize, const A: usize> {
-    cells: FlatWeights<M>,
-    faces: [FlatWeights<M>; A],
+struct PlanarStencil {
+    cells: FlatWeights,
+    faces: [FlatWeights; 2],
 }
 
-/// Two cells along x and y, faces along x and y: 176 bytes a slot
-/// (`Option` included) against 200 for `ParticleStencil<2>`.
-type PlanarStencil = FlatStencil<4, 2>;
-
-/// Two cells along each axis, faces along all three: 424 bytes a slot.
-type SpatialStencil = FlatStencil<8, 3>;
-
-impl<const M: usize, const A: usize> Stencil for FlatStencil<M, A> {
-    const EMPTY: FlatStencil<M, A> = FlatStencil {
+impl Stencil for PlanarStencil {
+    const EMPTY: PlanarStencil = PlanarStencil {
         cells: FlatWeights::EMPTY,
-        faces: [FlatWeights::EMPTY; A],
+        faces: [FlatWeights::EMPTY; 2],
     };
 
+    /// The products of [`ParticleStencil::for_each`] with its single z
+    /// cell of weight 1 (so `w_z w_y = w_y` exactly) and z offset 0.
     #[inline(always)]
     fn fill(&mut self, grid: &GridGeometry, strides: &Strides, pos: DVec3, side: f64) {
-        debug_assert_eq!(grid.planar, A == 2);
-        // Per axis: its cells, then its faces.
-        let mut axes = [[AxisWeights::<2>::EMPTY; 2]; A];
-        for (a, [cells, faces]) in axes.iter_mut().enumerate() {
-            axis_weights_into(cells, faces, grid, a, pos, side);
-        }
-        let z = |b: usize| axes.get(2).map(|z| &z[b]);
+        debug_assert!(grid.planar);
+        let (mut x, mut y) = ([AxisWeights::<2>::EMPTY; 2], [AxisWeights::<2>::EMPTY; 2]);
+        let [x_cells, x_faces] = &mut x;
+        axis_weights_into(x_cells, x_faces, grid, 0, pos, side);
+        let [y_cells, y_faces] = &mut y;
+        axis_weights_into(y_cells, y_faces, grid, 1, pos, side);
         let (cell_strides, face_strides) = strides;
-        self.cells
-            .fill_product([&axes[0][0], &axes[1][0]], z(0), *cell_strides);
-        for (a, faces) in self.faces.iter_mut().enumerate() {
-            // The faces along `a`, the cells along the other axes.
-            let pick = |b: usize| &axes[b][usize::from(a == b)];
-            faces.fill_product([pick(0), pick(1)], z(usize::from(a == 2)), face_strides[a]);
-        }
+        self.cells.fill_product(&x[0], &y[0], cell_strides[1]);
+        self.faces[0].fill_product(&x[1], &y[0], face_strides[0][1]);
+        self.faces[1].fill_product(&x[0], &y[1], face_strides[1][1]);
     }
 
     #[inline(always)]
@@ -333,19 +295,20 @@ pub struct Coupling {
     pub exchange_impulse_gas: DVec3,
 }
 
-/// The mapping stencils of a step, one per slot (`None`: free slot):
-/// multiplied out where no particle's cube is wider than a gas cell (the
-/// common case), else with [`MAX_SPAN`] entries per axis. All give the
-/// same entries and weights, bit for bit.
+/// The mapping stencils of a step, one per slot (`None`: free slot), with
+/// two entries per axis where no particle's cube is wider than a gas cell
+/// (the common case: 6 × 32 bytes a particle against 6 × 80), multiplied
+/// out in planar beds, else with [`MAX_SPAN`]. All give the same entries
+/// and weights, bit for bit.
 enum Stencils {
     Planar(Vec<Option<PlanarStencil>>),
-    Spatial(Vec<Option<SpatialStencil>>),
+    Narrow(Vec<Option<ParticleStencil<2>>>),
     Wide(Vec<Option<ParticleStencil<MAX_SPAN>>>),
 }
 
 impl Default for Stencils {
     fn default() -> Self {
-        Stencils::Planar(Vec::new())
+        Stencils::Narrow(Vec::new())
     }
 }
 
@@ -355,7 +318,7 @@ macro_rules! with_stencils {
     ($stencils:expr, |$st:ident| $body:expr) => {
         match $stencils {
             Stencils::Planar($st) => $body,
-            Stencils::Spatial($st) => $body,
+            Stencils::Narrow($st) => $body,
             Stencils::Wide($st) => $body,
         }
     };
@@ -546,10 +509,10 @@ impl Coupling {
         let narrow = cubes_fit_cells(grid, porosity, planar, views);
         match (&self.stencils, narrow, grid.planar) {
             (Stencils::Planar(_), true, true)
-            | (Stencils::Spatial(_), true, false)
+            | (Stencils::Narrow(_), true, false)
             | (Stencils::Wide(_), false, _) => {}
             (_, true, true) => self.stencils = Stencils::Planar(Vec::new()),
-            (_, true, false) => self.stencils = Stencils::Spatial(Vec::new()),
+            (_, true, false) => self.stencils = Stencils::Narrow(Vec::new()),
             (_, false, _) => self.stencils = Stencils::Wide(Vec::new()),
         }
         with_stencils!(&mut self.stencils, |st| fill_stencils(st, gas, views));
@@ -803,11 +766,9 @@ mod tests {
                 if (0..3).all(|a| (a == 2 && grid.planar) || side <= grid.h[a]) {
                     let mut narrow = ParticleStencil::<2>::EMPTY;
                     narrow.fill(&grid, &index_strides, p.pos, side);
-                    let (mut planar, mut spatial) = (PlanarStencil::EMPTY, SpatialStencil::EMPTY);
+                    let mut planar = PlanarStencil::EMPTY;
                     if grid.planar {
                         planar.fill(&grid, &index_strides, p.pos, side);
-                    } else {
-                        spatial.fill(&grid, &index_strides, p.pos, side);
                     }
                     for axis in [None, Some(0), Some(1), Some(2)] {
                         let (mut wide_entries, mut narrow_entries) = (Vec::new(), Vec::new());
@@ -818,14 +779,11 @@ mod tests {
                         st.for_each(axis, s, |i, w| wide_entries.push((i, w.to_bits())));
                         narrow.for_each(axis, s, |i, w| narrow_entries.push((i, w.to_bits())));
                         assert_eq!(wide_entries, narrow_entries);
-                        let mut flat_entries = Vec::new();
-                        let mut push = |i: usize, w: f64| flat_entries.push((i, w.to_bits()));
-                        if grid.planar {
-                            planar.for_each(axis, s, &mut push);
-                        } else {
-                            spatial.for_each(axis, s, &mut push);
+                        if grid.planar && axis != Some(2) {
+                            let mut planar_entries = Vec::new();
+                            planar.for_each(axis, s, |i, w| planar_entries.push((i, w.to_bits())));
+                            assert_eq!(wide_entries, planar_entries);
                         }
-                        assert_eq!(wide_entries, flat_entries);
                     }
                 }
                 let mut ours = Vec::new();
@@ -964,18 +922,16 @@ mod tests {
             let narrow = all_passes::<ParticleStencil<2>>(&g, &views, &gradient);
             let wide = all_passes::<ParticleStencil<MAX_SPAN>>(&g, &views, &gradient);
             assert_eq!(narrow, wide);
-            let flat = if grid.planar {
-                all_passes::<PlanarStencil>(&g, &views, &gradient)
-            } else {
-                all_passes::<SpatialStencil>(&g, &views, &gradient)
-            };
-            assert_eq!(flat, wide);
-            // The coupling picks the multiplied-out stencils of its grid.
+            if grid.planar {
+                assert_eq!(all_passes::<PlanarStencil>(&g, &views, &gradient), wide);
+            }
+            // The coupling picks the multiplied-out stencils in planar beds
+            // and the two-entry ones in 3D.
             let mut coupling = Coupling::default();
             coupling.gas_fraction(&g, &views);
             let picked = match coupling.stencils {
                 Stencils::Planar(_) => Some(true),
-                Stencils::Spatial(_) => Some(false),
+                Stencils::Narrow(_) => Some(false),
                 Stencils::Wide(_) => None,
             };
             assert_eq!(picked, Some(grid.planar));
