@@ -495,6 +495,119 @@ fn non_finite_particles_are_found() {
     assert_eq!((bad.id, bad.outside_axis), (1, None));
 }
 
+/// `Engine::fastest_beyond` passes most particles over without the exact
+/// number (a test on squares): it must name the same slot with the same
+/// number as the exact rule applied to every particle. Speeds at the
+/// limit times 1 ± 1e-12 and ± 1e-15, far below the margin, NaN and
+/// infinity, over 400 particles of two sizes.
+#[test]
+fn fastest_beyond_matches_the_exact_rule() {
+    let domain = edpm::domain::Domain {
+        lo: DVec3::ZERO,
+        hi: DVec3::new(1.0, 0.01, 0.01),
+        axes: [edpm::domain::AxisBoundary::Walls; 3],
+        outlet: None,
+    };
+    let n = 400;
+    let radius = |i: usize| if i.is_multiple_of(3) { 5e-4 } else { 2e-4 };
+    let particles: Vec<NewParticle> = (0..n)
+        .map(|i| NewParticle {
+            pos: DVec3::new(0.002 + 0.0024 * i as f64, 0.005, 0.005),
+            vel: DVec3::ZERO,
+            omega: DVec3::ZERO,
+            radius: radius(i),
+            material: 0,
+        })
+        .collect();
+    let mut e: Engine<IndexedHeap> = Engine::new(
+        domain,
+        MaterialTable::single(2500.0, edpm::collision::ContactParams::ELASTIC_SMOOTH),
+        EngineConfig {
+            skin: 1e-4,
+            ..Default::default()
+        },
+        &particles,
+    )
+    .unwrap();
+    let (dt, limit) = (1e-3, 2.0);
+    let exact = |e: &Engine<IndexedHeap>| {
+        let mut worst: Option<(usize, f64)> = None;
+        for (i, p) in e.particles().enumerate() {
+            let moved = p.vel.length() * dt / (2.0 * p.radius);
+            if (moved.is_nan() || moved > limit)
+                && worst.is_none_or(|w| moved.is_nan() || moved > w.1)
+            {
+                worst = Some((i, moved));
+            }
+        }
+        worst
+    };
+    // Speeds that move a particle `limit × f` diameters, in a direction
+    // that varies with the slot.
+    let at = |i: usize, f: f64| {
+        let speed = limit * f * 2.0 * radius(i) / dt;
+        DVec3::new(0.6, -0.48, 0.64) * speed * (1.0 + (i % 7) as f64 * 1e-3).recip()
+    };
+    let factors = [
+        0.5,
+        1.0 - 1e-12,
+        1.0 - 1e-15,
+        1.0,
+        1.0 + 1e-15,
+        1.0 + 1e-12,
+        1.0 + 1e-9,
+    ];
+    let mut named = 0;
+    for (case, &f) in factors.iter().enumerate() {
+        let kicks: Vec<DVec3> = (0..n)
+            .map(|i| match (i + case) % 5 {
+                0 => at(i, f),
+                1 => at(i, 0.999 * f),
+                _ => at(i, 0.3),
+            })
+            .collect();
+        e.kick_slots(&kicks);
+        let got = e.fastest_beyond(dt, limit);
+        assert_eq!(
+            got.map(|(i, m)| (i, m.to_bits())),
+            exact(&e).map(|(i, m)| (i, m.to_bits()))
+        );
+        named += usize::from(got.is_some());
+        // Back to rest for the next case.
+        let back: Vec<DVec3> = e.particles().map(|p| -p.vel).collect();
+        e.kick_slots(&back);
+    }
+    assert!(named >= 3, "the cases above the limit name a particle");
+    for bad in [f64::NAN, f64::INFINITY] {
+        let kicks: Vec<DVec3> = (0..n)
+            .map(|i| {
+                if i % 97 == 5 {
+                    DVec3::new(bad, 0.0, 0.0)
+                } else {
+                    at(i, 0.3)
+                }
+            })
+            .collect();
+        e.kick_slots(&kicks);
+        let got = e
+            .fastest_beyond(dt, limit)
+            .expect("a non-finite speed is named");
+        let want = exact(&e).unwrap();
+        assert_eq!((got.0, got.1.to_bits()), (want.0, want.1.to_bits()));
+        // Start afresh: a NaN velocity cannot be kicked back.
+        e = Engine::new(
+            e.domain().clone(),
+            MaterialTable::single(2500.0, edpm::collision::ContactParams::ELASTIC_SMOOTH),
+            EngineConfig {
+                skin: 1e-4,
+                ..Default::default()
+            },
+            &particles,
+        )
+        .unwrap();
+    }
+}
+
 /// t_end was silently rounded up to a whole number of flow steps (0.05 s
 /// with 0.0016 s steps ran to 0.0512 s): the last step is shorter.
 #[test]
