@@ -258,8 +258,9 @@ pub fn relaxation_factor(lambda: f64) -> f64 {
         // Σ (−λ)^n/(n+1)! to n = 7 (Horner): the first term left out,
         // λ⁸/9!, is below 2.5e-18 here, a ninetieth of an ulp of φ ≈ 1.
         // No cancellation as in 1 − e^{−λ}, and at the usual small λ (a
-        // flow step far below the particle relaxation time) a third of
-        // the time of `exp_m1` and the division.
+        // flow step far below the particle relaxation time) none of the
+        // latency of `exp_m1` and the division (results/benchmarks.md,
+        // twenty-fourth session).
         let terms = [
             1.0,
             -1.0 / 2.0,
@@ -846,9 +847,10 @@ mod tests {
 
     /// The series of `relaxation_factor` against a reference sum of 20
     /// terms, added smallest first with compensation (error well below an
-    /// ulp of φ ≈ 1): within 1.5 ulps over 1e-9 ≤ λ < 1/32, and within 4
-    /// ulps of the closed form at the switch. Dropping the series' last
-    /// term, λ⁷/8! (3.3 ulps at the limit), fails.
+    /// ulp of φ ≈ 1): within 1.5 ulps over 1e-9 ≤ λ < 1/32, and
+    /// continuous at the switch to the closed form (within 4 ulps).
+    /// Dropping the series' last term, λ⁷/8! (3.3 ulps at the limit),
+    /// fails.
     #[test]
     fn relaxation_series_matches_a_compensated_sum() {
         let reference = |l: f64| {
