@@ -233,18 +233,24 @@ fn neighbour_grid_of_a_huge_dilute_domain_is_bounded() {
             material: 0,
         })
         .collect();
-    let e: Engine<IndexedHeap> = Engine::new(
+    let e = engine_of(domain, &particles);
+    let bytes = e.bytes_per_particle() * e.len();
+    assert!(bytes < 200_000_000, "{bytes} bytes");
+}
+
+/// An engine of `particles` in `domain`, the way the tests here build one
+/// directly: one material (2500 kg/m³, elastic and smooth), a 0.1 mm skin.
+fn engine_of(domain: edpm::domain::Domain, particles: &[NewParticle]) -> Engine<IndexedHeap> {
+    Engine::new(
         domain,
         MaterialTable::single(2500.0, edpm::collision::ContactParams::ELASTIC_SMOOTH),
         EngineConfig {
             skin: 1e-4,
             ..Default::default()
         },
-        &particles,
+        particles,
     )
-    .unwrap();
-    let bytes = e.bytes_per_particle() * e.len();
-    assert!(bytes < 200_000_000, "{bytes} bytes");
+    .unwrap()
 }
 
 /// A forged string length in a log header made bincode allocate 4.5e18 bytes.
@@ -479,16 +485,7 @@ fn non_finite_particles_are_found() {
         radius: 5e-4,
         material: 0,
     };
-    let mut e: Engine<IndexedHeap> = Engine::new(
-        domain,
-        MaterialTable::single(2500.0, edpm::collision::ContactParams::ELASTIC_SMOOTH),
-        EngineConfig {
-            skin: 1e-4,
-            ..Default::default()
-        },
-        &[p(0.002), p(0.006)],
-    )
-    .unwrap();
+    let mut e = engine_of(domain, &[p(0.002), p(0.006)]);
     assert_eq!(e.find_bad_particle(), None);
     e.kick_slots(&[DVec3::ZERO, DVec3::new(f64::NAN, 0.0, 0.0)]);
     let bad = e.find_bad_particle().expect("the NaN velocity is found");
@@ -519,16 +516,7 @@ fn fastest_beyond_matches_the_exact_rule() {
             material: 0,
         })
         .collect();
-    let mut e: Engine<IndexedHeap> = Engine::new(
-        domain,
-        MaterialTable::single(2500.0, edpm::collision::ContactParams::ELASTIC_SMOOTH),
-        EngineConfig {
-            skin: 1e-4,
-            ..Default::default()
-        },
-        &particles,
-    )
-    .unwrap();
+    let mut e = engine_of(domain, &particles);
     let (dt, limit) = (1e-3, 2.0);
     let exact = |e: &Engine<IndexedHeap>| {
         let mut worst: Option<(usize, f64)> = None;
@@ -595,16 +583,7 @@ fn fastest_beyond_matches_the_exact_rule() {
         let want = exact(&e).unwrap();
         assert_eq!((got.0, got.1.to_bits()), (want.0, want.1.to_bits()));
         // Start afresh: a NaN velocity cannot be kicked back.
-        e = Engine::new(
-            e.domain().clone(),
-            MaterialTable::single(2500.0, edpm::collision::ContactParams::ELASTIC_SMOOTH),
-            EngineConfig {
-                skin: 1e-4,
-                ..Default::default()
-            },
-            &particles,
-        )
-        .unwrap();
+        e = engine_of(e.domain().clone(), &particles);
     }
 }
 
