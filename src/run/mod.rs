@@ -33,7 +33,8 @@ use feeder::InletFeeder;
 use recorders::{Recorder, RunEnd, StepEnd};
 
 use crate::engine::{
-    CollapseReport, ContactModel, Counters, Engine, NeighbourSearch, SoftConfig, SoftStats,
+    BadParticle, CollapseReport, ContactModel, Counters, Engine, NeighbourSearch, SoftConfig,
+    SoftStats,
 };
 use crate::gas::flow::{GasRun, GasTotals};
 use crate::io::output::write_atomic;
@@ -453,34 +454,58 @@ impl<Q: EventQueue> FlowLoop<'_, Q> {
         Ok(overlapped)
     }
 
-    /// Overlapped splitting: the flight and the gas step at the same time,
-    /// on two threads when there are two (the results do not depend on it:
-    /// neither reads what the other writes).
-    fn fly_beside_gas_step(&mut self, dt: f64) -> anyhow::Result<()> {
-        let Some(g) = self.gas.as_mut() else {
+    /// Overlapped splitting: the flight, closed as [`close_flight`] closes
+    /// it, beside the gas step, on two threads when there are two (the
+    /// results do not depend on it: neither reads what the other writes).
+    /// Returns the step's end.
+    fn fly_beside_gas_step(&mut self, at: StepAt) -> anyhow::Result<StepEnd> {
+        let FlowLoop {
+            s,
+            engine,
+            gas,
+            recorders,
+            restarts,
+            forces,
+            clock,
+            guard_watch,
+            ..
+        } = self;
+        let Some(g) = gas.as_mut() else {
             unreachable!("an overlapped step has a gas phase");
         };
-        let engine = &mut self.engine;
+        let dt = at.dt;
         // The re-prediction is data-parallel; the rest of the flight is not.
         // Results are the same bits wherever it runs.
         let predicted_before = engine.prediction_wall_seconds();
         let threads = rayon::current_num_threads();
-        let (before, ran) = if threads > 1 && self.clock.predicts_before_flight(threads) {
+        let (before, ran) = if threads > 1 && clock.predicts_before_flight(threads) {
             timed(|| engine.predict_now())
         } else {
             (0.0, false)
         };
+        let restarts = restarts.as_ref();
         let start = Instant::now();
-        let ((flight, ()), (gas, solved)) = rayon::join(
-            || timed(|| engine.advance(dt)),
+        let ((flight, closing, closed), (gas, solved)) = rayon::join(
+            || {
+                let (flight, ()) = timed(|| engine.advance(dt));
+                let (closing, closed) = match engine.stall() {
+                    Some(_) => (0.0, None),
+                    None => {
+                        let (t, closed) = timed(|| {
+                            close_flight(s, engine, recorders, guard_watch, *forces, restarts, at)
+                        });
+                        (t, Some(closed))
+                    }
+                };
+                (flight, closing, closed)
+            },
             || timed(|| g.solve_overlapped(dt)),
         );
         let both = start.elapsed().as_secs_f64();
         let prediction = engine.prediction_wall_seconds() - predicted_before;
-        let clock = &mut self.clock;
         clock.advance += before + flight;
         clock.gas += gas;
-        clock.overlapped += (flight + gas - both).max(0.0);
+        clock.overlapped += (flight + closing + gas - both).max(0.0);
         // Timed on every thread when it ran before the flight: its time on
         // one thread is about that times the threads (an estimate; inside
         // the join the gas task may take a share, so both are rough).
@@ -489,21 +514,39 @@ impl<Q: EventQueue> FlowLoop<'_, Q> {
         } else {
             prediction
         };
-        clock.last_flight_rest = flight - (prediction - before).max(0.0);
+        clock.last_flight_rest = flight + closing - (prediction - before).max(0.0);
         clock.last_gas = gas;
-        // A stalled flight is reported by the caller, as without overlap.
-        if let Err(e) = solved
-            && self.engine.stall().is_none()
-        {
-            let s = self.s;
+        // A stalled flight is reported first, as without overlap; then the
+        // gas step's failure, then what closing the flight found.
+        let Some(closed) = closed else {
+            let stall = engine.stall().expect("a flight left unclosed stalled");
+            anyhow::bail!("{}: {}", s.name, diagnose::stall_message(s, stall));
+        };
+        if let Err(e) = solved {
             anyhow::bail!(
                 "{}: gas phase, in the flow step that ended at t = {:.6} s (the particles had flown it beside the gas step): {e}; {}",
                 s.name,
-                self.engine.time(),
+                engine.time(),
                 diagnose::gas_failure_causes(g, dt)
             );
         }
-        Ok(())
+        self.stop_if_bad(closed?)
+    }
+
+    /// The step's end, or the run stopped if closing its flight found a
+    /// bad particle.
+    fn stop_if_bad(&self, (end, bad): (StepEnd, Option<BadParticle>)) -> anyhow::Result<StepEnd> {
+        match bad {
+            None => Ok(end),
+            Some(bad) => {
+                let s = self.s;
+                anyhow::bail!(
+                    "{}: {}",
+                    s.name,
+                    diagnose::bad_particle_message(s, &self.engine, self.gas.as_ref(), &bad)
+                )
+            }
+        }
     }
 
     /// Stops the run when, with forces, a particle would move further in a
@@ -542,55 +585,27 @@ impl<Q: EventQueue> FlowLoop<'_, Q> {
         }
         let overlapped = self.kick_before_flight(dt)?;
         self.check_speeds(dt)?;
-        if overlapped {
-            self.fly_beside_gas_step(dt)?;
+        let at = StepAt { step, dt, last };
+        let end = if overlapped {
+            self.fly_beside_gas_step(at)?
         } else {
             let start = Instant::now();
             self.engine.advance(dt);
             self.clock.advance += start.elapsed().as_secs_f64();
-        }
-        if let Some(stall) = self.engine.stall() {
-            anyhow::bail!("{}: {}", s.name, diagnose::stall_message(s, stall));
-        }
-        for r in self.recorders.iter_mut() {
-            r.after_events(&mut self.engine, dt)?;
-        }
-        self.engine.records.clear();
-        let end = StepEnd {
-            step: step + 1,
-            time: self.engine.time(),
-            dt,
-            last,
+            if let Some(stall) = self.engine.stall() {
+                anyhow::bail!("{}: {}", s.name, diagnose::stall_message(s, stall));
+            }
+            let closed = close_flight(
+                s,
+                &mut self.engine,
+                &mut self.recorders,
+                &mut self.guard_watch,
+                self.forces,
+                self.restarts.as_ref(),
+                at,
+            );
+            self.stop_if_bad(closed?)?
         };
-        // Every recorder is asked (no short cut): none keeps state from it.
-        let asked = self
-            .recorders
-            .iter()
-            .fold(false, |any, r| r.needs_sync(&end) | any)
-            || self
-                .restarts
-                .as_ref()
-                .is_some_and(|w| w.due(end.time, last));
-        // Without forces nothing changes at a flow step: synchronise only
-        // where results are taken (re-predicting everyone costs ~N events).
-        if self.forces || last || asked {
-            for r in self.recorders.iter_mut() {
-                r.before_sync(&mut self.engine)?;
-            }
-            self.engine.end_flow_step();
-            let (counters, time, n) =
-                (&self.engine.counters, self.engine.time(), self.engine.len());
-            if let Some(why) = self.guard_watch.observe(s, counters, time, n) {
-                anyhow::bail!("{}: {why}", s.name);
-            }
-            if let Some(bad) = self.engine.find_bad_particle() {
-                anyhow::bail!(
-                    "{}: {}",
-                    s.name,
-                    diagnose::bad_particle_message(s, &self.engine, self.gas.as_ref(), &bad)
-                );
-            }
-        }
         if s.time.splitting != Splitting::FirstOrder {
             if let Some(g) = self.gas.as_mut() {
                 let start = Instant::now();
@@ -620,6 +635,58 @@ impl<Q: EventQueue> FlowLoop<'_, Q> {
         }
         Ok(())
     }
+}
+
+/// Where a flow step is in its run: `step` (0-based), its length `dt` (s),
+/// and whether it is the run's last.
+#[derive(Clone, Copy)]
+struct StepAt {
+    step: u64,
+    dt: f64,
+    last: bool,
+}
+
+/// Closes the flight of a flow step, on the thread that flew it: the
+/// recorders see its events; then, with `forces` or where a recorder or a
+/// restart file (from `restarts`) asks for it, the particles are
+/// synchronised and checked (the collapse guard's share, the bad-particle
+/// check). Returns the step's end and a bad particle found.
+fn close_flight<Q: EventQueue>(
+    s: &Scenario,
+    engine: &mut Engine<Q>,
+    recorders: &mut [Box<dyn Recorder<Q>>],
+    guard_watch: &mut diagnose::GuardWatch,
+    forces: bool,
+    restarts: Option<&restart::RestartWriter>,
+    at: StepAt,
+) -> anyhow::Result<(StepEnd, Option<BadParticle>)> {
+    for r in recorders.iter_mut() {
+        r.after_events(engine, at.dt)?;
+    }
+    engine.records.clear();
+    let end = StepEnd {
+        step: at.step + 1,
+        time: engine.time(),
+        dt: at.dt,
+        last: at.last,
+    };
+    // Every recorder is asked (no short cut): none keeps state from it.
+    let asked = (recorders.iter()).fold(false, |any, r| r.needs_sync(&end) | any)
+        || restarts.is_some_and(|w| w.due(end.time, end.last));
+    // Without forces nothing changes at a flow step: synchronise only
+    // where results are taken (re-predicting everyone costs ~N events).
+    if !(forces || end.last || asked) {
+        return Ok((end, None));
+    }
+    for r in recorders.iter_mut() {
+        r.before_sync(engine)?;
+    }
+    engine.end_flow_step();
+    let (counters, time, n) = (&engine.counters, engine.time(), engine.len());
+    if let Some(why) = guard_watch.observe(s, counters, time, n) {
+        anyhow::bail!("{}: {why}", s.name);
+    }
+    Ok((end, engine.find_bad_particle()))
 }
 
 /// Runs `s` with the queue `Q`: builds the engine and the gas, drives the

@@ -58,7 +58,9 @@ pub struct RunEnd {
 /// [`after_events`](Recorder::after_events),
 /// [`needs_sync`](Recorder::needs_sync), [`before_sync`](Recorder::before_sync)
 /// (when the particles are synchronised), then [`end_step`](Recorder::end_step).
-pub trait Recorder<Q: EventQueue> {
+/// `Send`: with overlapped splitting the calls from `after_events` to
+/// `before_sync` come from the thread that flew the particles.
+pub trait Recorder<Q: EventQueue>: Send {
     /// The initial state, before the first flow step.
     fn start(&mut self, _engine: &mut Engine<Q>, _gas: Option<&mut GasRun>) -> anyhow::Result<()> {
         Ok(())
