@@ -492,6 +492,80 @@ fn non_finite_particles_are_found() {
     assert_eq!((bad.id, bad.outside_axis), (1, None));
 }
 
+/// `Engine::kick_matching` gives a kick computed for an earlier moment
+/// only to the particle it was computed for: the same bits as
+/// `kick_slots` with the matched kicks written out, for a slot that
+/// kept its particle, one that holds another id, one whose particle left
+/// through the outlet, an entry of a slot that was free (`u64::MAX`), and
+/// entries fewer or more than the slots.
+#[test]
+fn kick_matching_reaches_only_the_particles_meant() {
+    let domain = edpm::domain::Domain {
+        lo: DVec3::ZERO,
+        hi: DVec3::splat(0.01),
+        axes: [edpm::domain::AxisBoundary::Walls; 3],
+        outlet: Some(edpm::domain::Outlet {
+            axis: 1,
+            mode: edpm::domain::OutletMode::Remove,
+        }),
+    };
+    let p = |x: f64, vy: f64| NewParticle {
+        pos: DVec3::new(x, 0.009, 0.005),
+        vel: DVec3::new(0.0, vy, 0.0),
+        omega: DVec3::ZERO,
+        radius: 4e-4,
+        material: 0,
+    };
+    let start = [p(0.001, 0.0), p(0.003, 0.0), p(0.005, 10.0), p(0.007, 0.0)];
+    let mut matched = engine_of(domain, &start);
+    // Slot 2's particle leaves through the top within 1e-3 s.
+    matched.advance(1e-3);
+    matched.end_flow_step();
+    assert_eq!(matched.len(), 3, "one particle left");
+    let mut written = engine_of(matched.domain().clone(), &start);
+    written.advance(1e-3);
+    written.end_flow_step();
+    let kick = |i: u32| DVec3::new(0.1 + f64::from(i), -1.0 / 3.0, 7.0 / 9.0);
+    let scale = 0.37;
+    // Slot 0 kept id 0; slot 1 now "holds" id 9 (the entry says 1); slot 2
+    // left; slot 3 was free when the kicks were computed.
+    let entries = [
+        (0, kick(0)),
+        (9, kick(1)),
+        (2, kick(2)),
+        (u64::MAX, kick(3)),
+    ];
+    matched.kick_matching(&entries, scale);
+    let mut dv = vec![DVec3::ZERO; written.slots()];
+    dv[0] = scale * kick(0);
+    written.kick_slots(&dv);
+    let bits = |e: &Engine<IndexedHeap>| -> Vec<[u64; 3]> {
+        e.particles()
+            .map(|q| q.vel.to_array().map(f64::to_bits))
+            .collect()
+    };
+    assert_eq!(bits(&matched), bits(&written));
+    assert_ne!(matched.particles().next().unwrap().vel, DVec3::ZERO);
+    // Fewer entries than slots, then more: the missing slots get nothing,
+    // the extra entries are dropped.
+    matched.kick_matching(&entries[..1], 1.0);
+    matched.kick_matching(
+        &[
+            (0, kick(0)),
+            (1, kick(1)),
+            (2, kick(2)),
+            (3, kick(3)),
+            (4, kick(4)),
+        ],
+        1.0,
+    );
+    dv[0] = kick(0);
+    written.kick_slots(&dv);
+    dv = vec![kick(0), kick(1), DVec3::ZERO, kick(3)];
+    written.kick_slots(&dv);
+    assert_eq!(bits(&matched), bits(&written));
+}
+
 /// `Engine::fastest_beyond` passes most particles over without the exact
 /// number (a test on squares): it must name the same slot with the same
 /// number as the exact rule applied to every particle. Speeds at the

@@ -46,6 +46,11 @@ pub trait ParticleDynamics: Sync {
     /// per slot ([`ParticleDynamics::slots`]).
     fn kick_slots(&mut self, dv: &[DVec3]);
 
+    /// Adds `scale · kick` (m/s) to the particle in each slot that still
+    /// holds the particle with the entry's id (`entries[slot] = (id,
+    /// kick)`); other slots get nothing.
+    fn kick_matching(&mut self, entries: &[(u64, DVec3)], scale: f64);
+
     /// Moves every particle, with its contacts, to `time() + dt` (s).
     fn advance(&mut self, dt: f64);
 
@@ -85,6 +90,10 @@ impl<Q: EventQueue> ParticleDynamics for Engine<Q> {
 
     fn kick_slots(&mut self, dv: &[DVec3]) {
         Engine::kick_slots(self, dv);
+    }
+
+    fn kick_matching(&mut self, entries: &[(u64, DVec3)], scale: f64) {
+        Engine::kick_matching(self, entries, scale);
     }
 
     /// Processes every event of the step ([`Engine::advance`]).

@@ -282,6 +282,23 @@ impl<Q: EventQueue> Engine<Q> {
         self.kicks_uniform = false;
     }
 
+    /// Adds `scale · kick` (m/s) to the velocity of the particle in each
+    /// slot whose particle has the entry's id (`entries[slot] = (id,
+    /// kick)`): kicks computed for the particles of an earlier moment. A
+    /// slot emptied since, or refilled by another particle, gets nothing;
+    /// so do free slots and slots past `entries`, and entries past the
+    /// slots are dropped.
+    pub fn kick_matching(&mut self, entries: &[(u64, DVec3)], scale: f64) {
+        let slots = self.kin.iter_mut().zip(&self.active).zip(&self.id);
+        for (((k, &active), &id), &(meant_for, kick)) in slots.zip(entries) {
+            if active && id == meant_for {
+                k.vel += scale * kick;
+            }
+        }
+        self.needs_prediction = true;
+        self.kicks_uniform = false;
+    }
+
     #[inline]
     pub(super) fn sync(&mut self, i: usize) {
         let k = &mut self.kin[i];

@@ -43,7 +43,7 @@ fn matched_kicks(
 
 /// Each of `kicks` (one per slot) with the id of the particle the view of
 /// its slot shows (`u64::MAX` for a free slot, which no particle has), for
-/// [`matched_kicks`] to give later.
+/// [`ParticleDynamics::kick_matching`] to give later.
 fn with_ids<'a>(
     views: &'a [Option<ParticleView>],
     kicks: impl Iterator<Item = DVec3> + 'a,
@@ -86,11 +86,11 @@ pub struct GasRun {
     /// steps and in restart files).
     predictor_source: Vec<(u64, DVec3)>,
     predictor_dt: f64,
-    /// Overlapped splitting: the predicted half kick each slot got before
-    /// this step's flight.
+    /// Overlapped splitting: the factor on `predictor_source` that gave
+    /// the predicted half kicks before this step's flight, and those kicks
+    /// per slot (computed again beside the flight).
+    predicted_scale: f64,
     predicted: Vec<DVec3>,
-    /// The kicks [`GasRun::finish_kicks`] gives, per slot (a buffer).
-    finishing: Vec<DVec3>,
     /// Every slot's particle at the start of the current step (a buffer
     /// kept between steps).
     views: Vec<Option<ParticleView>>,
@@ -178,8 +178,8 @@ impl GasRun {
             deferred: Vec::new(),
             predictor_source: Vec::new(),
             predictor_dt: 0.0,
+            predicted_scale: 0.0,
             predicted: Vec::new(),
-            finishing: Vec::new(),
             views: Vec::new(),
             solver_wall_seconds: 0.0,
         }
@@ -286,15 +286,8 @@ impl GasRun {
         }
         let start = crate::timing::cpu_time();
         self.take_views(engine);
-        let views = &self.views;
-        matched_kicks(
-            views.len(),
-            |slot| views[slot].map(|p| p.id),
-            &self.predictor_source,
-            0.5 * (dt / self.predictor_dt),
-            &mut self.predicted,
-        );
-        engine.kick_slots(&self.predicted);
+        self.predicted_scale = 0.5 * (dt / self.predictor_dt);
+        engine.kick_matching(&self.predictor_source, self.predicted_scale);
         self.totals.gas_cpu_seconds += crate::timing::cpu_time() - start;
         true
     }
@@ -309,6 +302,16 @@ impl GasRun {
     pub fn solve_overlapped(&mut self, dt: f64) -> Result<(), GasError> {
         let start = crate::timing::thread_cpu_time();
         self.solve_from_views(dt, crate::timing::thread_cpu_time)?;
+        // The predicted halves each slot got, as `predict_kicks` gave them
+        // (the views are the particles it kicked).
+        let views = &self.views;
+        matched_kicks(
+            views.len(),
+            |slot| views[slot].map(|p| p.id),
+            &self.predictor_source,
+            self.predicted_scale,
+            &mut self.predicted,
+        );
         let rest = (self.coupling.last_kicks().iter()).zip(&self.predicted);
         self.deferred.clear();
         self.deferred
@@ -378,15 +381,8 @@ impl GasRun {
     /// it; a slot refilled meanwhile by another particle neither).
     pub fn finish_kicks(&mut self, engine: &mut impl ParticleDynamics) {
         let start = crate::timing::cpu_time();
-        matched_kicks(
-            engine.slots(),
-            |slot| engine.particle_id(slot),
-            &self.deferred,
-            1.0,
-            &mut self.finishing,
-        );
+        engine.kick_matching(&self.deferred, 1.0);
         self.deferred.clear();
-        engine.kick_slots(&self.finishing);
         self.totals.gas_cpu_seconds += crate::timing::cpu_time() - start;
     }
 
