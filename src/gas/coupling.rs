@@ -269,9 +269,13 @@ pub fn relaxation_factor(lambda: f64) -> f64 {
             1.0 / 120.0,
             -1.0 / 720.0,
             1.0 / 5040.0,
-            -1.0 / 40320.0,
         ];
-        terms.iter().rev().fold(0.0, |sum, &c| sum * lambda + c)
+        // Horner from the last term, -1/8! (the same bits as from 0.0,
+        // whose first product 0·λ adds nothing to the sum).
+        terms
+            .iter()
+            .rev()
+            .fold(-1.0 / 40320.0, |sum, &c| sum * lambda + c)
     } else {
         -(-lambda).exp_m1() / lambda
     }
@@ -407,7 +411,10 @@ fn scatter_solids<T: Stencil>(
 
 /// Per slot, the drag coefficient `K` (kg/s) at the gas fraction, density
 /// and velocity interpolated to the particle, and its relaxation factor
-/// over `dt` (s), into `out`.
+/// over `dt` (s), into `out`. The factors are a second pass over `out`:
+/// each is a chain of dependent multiplies and adds, which a short loop
+/// overlaps from one particle to the next and the long loop of the
+/// coefficients, with its `exp` and `ln` calls, did not.
 fn drag_coefficients<T: Stencil>(
     stencils: &[Option<T>],
     views: &[Option<ParticleView>],
@@ -424,8 +431,9 @@ fn drag_coefficients<T: Stencil>(
         .zip(stencils.par_iter())
         .with_min_len(PARTICLES_PER_TASK)
         .map(|(slot, stencil)| {
+            // A free slot: no drag, λ = 0 (its factor is 1).
             let (Some(p), Some(st)) = (slot, stencil) else {
-                return (0.0, 1.0);
+                return (0.0, 0.0);
             };
             let (eps, rho) = st.interpolate_two(None, cell_strides, (fraction, density));
             let mut u = DVec3::ZERO;
@@ -434,9 +442,12 @@ fn drag_coefficients<T: Stencil>(
             }
             let slip = (u - p.vel).length();
             let k = particle_drag_coefficient(law, eps, rho, mu, 2.0 * p.radius, slip);
-            (k, relaxation_factor(k * dt / p.mass))
+            (k, k * dt / p.mass)
         })
         .collect_into_vec(out);
+    out.par_iter_mut()
+        .with_min_len(PARTICLES_PER_TASK)
+        .for_each(|(_, lambda)| *lambda = relaxation_factor(*lambda));
 }
 
 /// Two-way coupling: the drag sink `α + β u` and the particles' share of
