@@ -30,6 +30,71 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// Files written on a thread of their own (each with [`write_atomic`] or
+/// its like), so that a run does not wait for encoding and the disk:
+/// jobs run one at a time in the order given. At most
+/// [`BackgroundWriter::PENDING`] wait; [`BackgroundWriter::submit`] blocks
+/// beyond. The first failure stops the writer and is returned by the next
+/// `submit` or by [`BackgroundWriter::finish`]. Dropped unfinished, it
+/// still completes the jobs given (errors then go unreported).
+pub struct BackgroundWriter {
+    jobs: Option<std::sync::mpsc::SyncSender<WriteJob>>,
+    thread: Option<std::thread::JoinHandle<anyhow::Result<()>>>,
+}
+
+type WriteJob = Box<dyn FnOnce() -> anyhow::Result<()> + Send>;
+
+impl BackgroundWriter {
+    /// Jobs that may wait while one is written.
+    pub const PENDING: usize = 2;
+
+    /// A writer on a new thread named `name`.
+    pub fn new(name: &str) -> anyhow::Result<Self> {
+        let (jobs, queue) = std::sync::mpsc::sync_channel::<WriteJob>(Self::PENDING);
+        let thread = std::thread::Builder::new()
+            .name(name.to_string())
+            .spawn(move || queue.into_iter().try_for_each(|job| job()))
+            .with_context(|| format!("starting the {name} thread"))?;
+        Ok(BackgroundWriter {
+            jobs: Some(jobs),
+            thread: Some(thread),
+        })
+    }
+
+    /// Queues `job`; an earlier job's failure instead, if there was one.
+    pub fn submit(
+        &mut self,
+        job: impl FnOnce() -> anyhow::Result<()> + Send + 'static,
+    ) -> anyhow::Result<()> {
+        let sent = self.jobs.as_ref().map(|q| q.send(Box::new(job)));
+        match sent {
+            Some(Ok(())) => Ok(()),
+            // The thread stopped at a failure (or finish was called).
+            _ => {
+                self.finish()?;
+                anyhow::bail!("the background writer was finished before this file")
+            }
+        }
+    }
+
+    /// Waits for every job given; the first failure, if any.
+    pub fn finish(&mut self) -> anyhow::Result<()> {
+        self.jobs = None;
+        match self.thread.take().map(std::thread::JoinHandle::join) {
+            None => Ok(()),
+            Some(Ok(written)) => written,
+            Some(Err(_)) => anyhow::bail!("the background writer panicked"),
+        }
+    }
+}
+
+impl Drop for BackgroundWriter {
+    fn drop(&mut self) {
+        // Errors were someone else's to collect: finish was not called.
+        let _ = self.finish();
+    }
+}
+
 /// Columns that hold counts or indices, in every CSV edpm writes: their
 /// values are written as integers (`500`, not `500.0`).
 pub const INTEGER_COLUMNS: &[&str] = &[
@@ -257,6 +322,55 @@ impl Checkpoint {
 mod tests {
     use super::*;
     use glam::DVec3;
+
+    /// The jobs run in the order given, all of them by `finish`, although
+    /// the first ones are slow and the queue is full meanwhile.
+    #[test]
+    fn background_jobs_run_in_order_and_finish_waits() {
+        let done = std::sync::Arc::new(std::sync::Mutex::new(Vec::new()));
+        let mut w = BackgroundWriter::new("test writer").unwrap();
+        for i in 0..(3 * BackgroundWriter::PENDING) {
+            let done = done.clone();
+            w.submit(move || {
+                if i < 2 {
+                    std::thread::sleep(std::time::Duration::from_millis(20));
+                }
+                done.lock().unwrap().push(i);
+                Ok(())
+            })
+            .unwrap();
+        }
+        w.finish().unwrap();
+        let want: Vec<usize> = (0..3 * BackgroundWriter::PENDING).collect();
+        assert_eq!(*done.lock().unwrap(), want);
+    }
+
+    /// A failed job stops the writer: its error comes back (from a later
+    /// `submit` or from `finish`), and no later job runs.
+    #[test]
+    fn a_background_failure_is_reported_and_stops_the_writer() {
+        let ran = std::sync::Arc::new(std::sync::atomic::AtomicUsize::new(0));
+        let mut w = BackgroundWriter::new("test writer").unwrap();
+        w.submit(|| anyhow::bail!("disk full")).unwrap();
+        let mut reported = None;
+        for _ in 0..200 {
+            let ran = ran.clone();
+            let job = move || {
+                ran.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+                Ok(())
+            };
+            if let Err(e) = w.submit(job) {
+                reported = Some(e);
+                break;
+            }
+            std::thread::sleep(std::time::Duration::from_millis(1));
+        }
+        let e = reported.map_or_else(|| w.finish().unwrap_err(), |e| e);
+        assert!(e.to_string().contains("disk full"), "{e}");
+        assert_eq!(ran.load(std::sync::atomic::Ordering::SeqCst), 0);
+        // Finished: later files are refused, not lost in silence.
+        assert!(w.submit(|| Ok(())).is_err());
+    }
 
     #[test]
     fn counts_are_integers_and_other_numbers_round_trip() {

@@ -139,7 +139,7 @@ pub fn for_run<Q: EventQueue>(
         engine.set_recording(true);
         recorders.push(Box::new(snapshots::AnalysisSnapshots::new(
             s, out_dir, interval, gas, run_id,
-        )));
+        )?));
     }
     if let Some(path) = &opts.log {
         engine.set_recording(true);

@@ -6,10 +6,11 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 use glam::DVec3;
 
-use super::{Recorder, StepEnd, due, next_multiple};
+use super::{Recorder, RunEnd, StepEnd, due, next_multiple};
 use crate::domain::AxisBoundary;
 use crate::engine::{Engine, Record};
 use crate::gas::flow::GasRun;
+use crate::io::output::BackgroundWriter;
 use crate::io::snapshot::{
     CollisionTally, GasSnapshot, SNAPSHOT_VERSION, Snapshot, SnapshotParticle, TallyGrid,
 };
@@ -26,6 +27,8 @@ pub struct AnalysisSnapshots {
     tally: CollisionTally,
     gravity: DVec3,
     run_id: u64,
+    /// Encodes and writes the snapshots beside the run.
+    writer: BackgroundWriter,
 }
 
 impl AnalysisSnapshots {
@@ -36,7 +39,7 @@ impl AnalysisSnapshots {
         interval: f64,
         gas: Option<&GasRun>,
         run_id: u64,
-    ) -> Self {
+    ) -> anyhow::Result<Self> {
         let grid = match gas {
             Some(g) => TallyGrid {
                 lo: g.gas.grid.lo,
@@ -53,7 +56,7 @@ impl AnalysisSnapshots {
                 }
             }
         };
-        AnalysisSnapshots {
+        Ok(AnalysisSnapshots {
             dir: out_dir.join("snapshots"),
             interval,
             next: 0.0,
@@ -61,7 +64,8 @@ impl AnalysisSnapshots {
             tally: CollisionTally::new(grid),
             gravity: s.domain.gravity,
             run_id,
-        }
+            writer: BackgroundWriter::new("snapshot writer")?,
+        })
     }
 
     /// Adds the collisions of the flow step just processed.
@@ -110,7 +114,8 @@ impl AnalysisSnapshots {
             gas,
             collisions: Some(self.tally.clone()),
         };
-        snapshot.write(&self.dir.join(format!("{:06}.bin", self.count)))?;
+        let path = self.dir.join(format!("{:06}.bin", self.count));
+        self.writer.submit(move || snapshot.write(&path))?;
         self.tally.reset();
         self.count += 1;
         self.next = next_multiple(t, self.interval);
@@ -138,5 +143,10 @@ impl<Q: EventQueue> Recorder<Q> for AnalysisSnapshots {
             self.write(engine, gas.as_deref())?;
         }
         Ok(())
+    }
+
+    /// Every snapshot is on disk before the run reports its end.
+    fn finish(&mut self, _engine: &mut Engine<Q>, _end: &mut RunEnd) -> anyhow::Result<()> {
+        self.writer.finish()
     }
 }
