@@ -365,7 +365,7 @@ mod tests {
             }
             std::thread::sleep(std::time::Duration::from_millis(1));
         }
-        let e = reported.map_or_else(|| w.finish().unwrap_err(), |e| e);
+        let e = reported.unwrap_or_else(|| w.finish().unwrap_err());
         assert!(e.to_string().contains("disk full"), "{e}");
         assert_eq!(ran.load(std::sync::atomic::Ordering::SeqCst), 0);
         // Finished: later files are refused, not lost in silence.
