@@ -37,7 +37,7 @@ pub use records::{
 };
 pub use soft_stepper::SoftStats;
 pub use state::{EngineState, SlotState};
-pub use store::ParticleView;
+pub use store::{MotionTotals, ParticleView};
 
 use soft_stepper::{SOFT_START_OVERLAP, SoftStepper};
 use store::{CellState, EventState, Kinematics, PairCandidate, Spins};

@@ -156,31 +156,29 @@ fn sample_interval_row<Q: EventQueue>(
     soft: bool,
 ) -> anyhow::Result<()> {
     let c = &engine.counters;
-    let (ke_t, ke_r) = engine.kinetic_energy();
-    let momentum = engine.momentum();
+    // Two passes: the sums, then the fluctuations about the mean velocity.
+    let totals = engine.motion_totals();
+    let ((ke_t, ke_r), momentum, mass) = (totals.kinetic, totals.momentum, totals.mass);
     let d = engine.domain().dimensions() as f64;
     let volume = engine.domain().volume();
-    let mass: f64 = engine.particles().map(|p| p.mass).sum();
     let mean = if mass > 0.0 {
         momentum / mass
     } else {
         DVec3::ZERO
     };
-    let fluct: f64 = engine
-        .particles()
-        .map(|p| p.mass * (p.vel - mean).length_squared())
-        .sum();
+    // From −0.0, as `Iterator::sum` starts: an empty system still writes
+    // -0.0 here, as before the passes were fused.
+    let (fluct, spread) = engine.particles().fold((-0.0, -0.0), |(f, s), p| {
+        let c2 = (p.vel - mean).length_squared();
+        (f + p.mass * c2, s + c2)
+    });
     let n = engine.len().max(1) as f64;
     let centre = if mass > 0.0 {
-        engine.particles().map(|p| p.mass * p.pos).sum::<DVec3>() / mass
+        totals.mass_moment / mass
     } else {
         DVec3::ZERO
     };
-    let temperature = engine
-        .particles()
-        .map(|p| (p.vel - mean).length_squared())
-        .sum::<f64>()
-        / (d * n);
+    let temperature = spread / (d * n);
     let p_coll = if interval > 0.0 {
         (c.virial - last.virial) / (d * volume * interval)
     } else {
