@@ -12,7 +12,7 @@
 use std::hint::black_box;
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
-use edpm::engine::ParticleView;
+use edpm::engine::MotionView;
 use edpm::gas::flow::GasRun;
 use edpm::queue::CalendarQueue;
 use edpm::scenario::Scenario;
@@ -34,8 +34,8 @@ fn coupling(c: &mut Criterion) {
         engine.advance(DT);
         engine.end_flow_step();
     }
-    let views: Vec<Option<ParticleView>> =
-        (0..engine.slots()).map(|i| engine.particle(i)).collect();
+    let views: Vec<Option<MotionView>> =
+        (0..engine.slots()).map(|i| engine.motion_view(i)).collect();
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(1)
         .build()

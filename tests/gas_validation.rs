@@ -4,7 +4,7 @@
 //! particle, and buoyant settling two-way coupled. The reference cases
 //! are `edpm::validate::gas_flow`'s, shared with `edpm validate`.
 
-use edpm::engine::ParticleView;
+use edpm::engine::{MotionView, ParticleView};
 use edpm::gas::PressureSolverKind;
 use edpm::gas::coupling::Coupling;
 use edpm::gas::drag::terminal_velocity;
@@ -167,7 +167,7 @@ fn interphase_momentum_balances_exactly() {
                 case.grid.n[2] as f64,
             );
         let d = 0.004;
-        let particles: Vec<Option<ParticleView>> = (0..400)
+        let particles: Vec<Option<MotionView>> = (0..400)
             .map(|i| {
                 if i % 7 == 3 {
                     return None;

@@ -8,7 +8,7 @@
 
 use glam::DVec3;
 
-use super::{Engine, ParticleView};
+use super::{Engine, MotionView, ParticleView};
 use crate::queue::EventQueue;
 
 /// Particles moved by a model between flow steps (SI units). `Sync`, so
@@ -30,6 +30,12 @@ pub trait ParticleDynamics: Sync {
 
     /// The particle in `slot` at the current time; `None` for a free slot.
     fn particle(&self, slot: usize) -> Option<ParticleView>;
+
+    /// What the gas coupling reads of the particle in `slot`; `None` for a
+    /// free slot.
+    fn motion_view(&self, slot: usize) -> Option<MotionView> {
+        self.particle(slot).map(MotionView::from)
+    }
 
     /// The id of the particle in `slot`; `None` for a free slot.
     fn particle_id(&self, slot: usize) -> Option<u64> {
@@ -74,6 +80,10 @@ impl<Q: EventQueue> ParticleDynamics for Engine<Q> {
 
     fn particle(&self, slot: usize) -> Option<ParticleView> {
         Engine::particle(self, slot)
+    }
+
+    fn motion_view(&self, slot: usize) -> Option<MotionView> {
+        Engine::motion_view(self, slot)
     }
 
     fn particle_id(&self, slot: usize) -> Option<u64> {

@@ -37,7 +37,7 @@ pub use records::{
 };
 pub use soft_stepper::SoftStats;
 pub use state::{EngineState, SlotState};
-pub use store::{MotionTotals, ParticleView};
+pub use store::{MotionTotals, MotionView, ParticleView};
 
 use soft_stepper::{SOFT_START_OVERLAP, SoftStepper};
 use store::{CellState, EventState, Kinematics, PairCandidate, Spins};
@@ -727,6 +727,23 @@ impl<Q: EventQueue> Engine<Q> {
             radius: k.radius,
             mass: 1.0 / self.inv_mass[slot],
             material: self.material[slot],
+        })
+    }
+
+    /// What the gas coupling reads of the particle in `slot` (as
+    /// [`Engine::particle`] gives it); `None` for a free slot.
+    #[inline]
+    pub fn motion_view(&self, slot: usize) -> Option<MotionView> {
+        if !self.active[slot] {
+            return None;
+        }
+        let k = &self.kin[slot];
+        Some(MotionView {
+            id: self.id[slot],
+            pos: self.domain.wrap(k.position_at(self.now)),
+            vel: k.vel,
+            radius: k.radius,
+            mass: 1.0 / self.inv_mass[slot],
         })
     }
 

@@ -25,6 +25,30 @@ pub struct ParticleView {
     pub material: u16,
 }
 
+/// What the gas coupling reads of a particle: its state at the start of
+/// a flow step without spin and material (80 bytes as an `Option` against
+/// 112: the coupling takes one of every slot at every flow step).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MotionView {
+    pub id: u64,
+    pub pos: DVec3,
+    pub vel: DVec3,
+    pub radius: f64,
+    pub mass: f64,
+}
+
+impl From<ParticleView> for MotionView {
+    fn from(p: ParticleView) -> Self {
+        MotionView {
+            id: p.id,
+            pos: p.pos,
+            vel: p.vel,
+            radius: p.radius,
+            mass: p.mass,
+        }
+    }
+}
+
 impl From<ParticleView> for NewParticle {
     fn from(p: ParticleView) -> Self {
         NewParticle {

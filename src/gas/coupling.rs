@@ -47,7 +47,7 @@ use super::drag::particle_drag_coefficient;
 use super::mapping::{AxisWeights, MAX_SPAN, axis_weights_into, hoomans_2d_to_3d, mapping_side};
 use super::solver::GasPhase;
 use crate::domain::grid::GridGeometry;
-use crate::engine::ParticleView;
+use crate::engine::MotionView;
 
 /// Lowest gas fraction handed to the gas solver and drag laws. Random
 /// packings stay above 0.36; lower values only come from mapping round-off
@@ -354,7 +354,7 @@ fn cubes_fit_cells(
     grid: &GridGeometry,
     porosity: PorosityMapping,
     planar: PlanarPorosity,
-    views: &[Option<ParticleView>],
+    views: &[Option<MotionView>],
 ) -> bool {
     let largest = views.iter().flatten().map(|p| p.radius).fold(0.0, f64::max);
     let side = mapping_side(grid, porosity, planar, 2.0 * largest);
@@ -366,7 +366,7 @@ fn cubes_fit_cells(
 fn fill_stencils<T: Stencil>(
     stencils: &mut Vec<Option<T>>,
     gas: &GasPhase,
-    views: &[Option<ParticleView>],
+    views: &[Option<MotionView>],
 ) {
     let grid = &gas.grid;
     let index_strides = strides(grid);
@@ -391,7 +391,7 @@ fn fill_stencils<T: Stencil>(
 /// Hoomans' planar porosity) to `solids` per cell, in slot order.
 fn scatter_solids<T: Stencil>(
     stencils: &[Option<T>],
-    views: &[Option<ParticleView>],
+    views: &[Option<MotionView>],
     cell_strides: [usize; 3],
     hoomans: bool,
     solids: &mut [f64],
@@ -417,7 +417,7 @@ fn scatter_solids<T: Stencil>(
 /// coefficients, with its `exp` and `ln` calls, did not.
 fn drag_coefficients<T: Stencil>(
     stencils: &[Option<T>],
-    views: &[Option<ParticleView>],
+    views: &[Option<MotionView>],
     gas: &GasPhase,
     dt: f64,
     out: &mut Vec<(f64, f64)>,
@@ -454,7 +454,7 @@ fn drag_coefficients<T: Stencil>(
 /// the pressure force at the faces, in slot order (module notes).
 fn scatter_sinks<T: Stencil>(
     stencils: &[Option<T>],
-    views: &[Option<ParticleView>],
+    views: &[Option<MotionView>],
     drag: &[(f64, f64)],
     gas: &mut GasPhase,
     face_solids: &mut [Vec<f64>; 3],
@@ -488,7 +488,7 @@ fn scatter_sinks<T: Stencil>(
 /// new level, into `out` (zero for free slots).
 fn particle_kicks<T: Stencil>(
     stencils: &[Option<T>],
-    views: &[Option<ParticleView>],
+    views: &[Option<MotionView>],
     drag: &[(f64, f64)],
     (gas, velocity, gradient): (&GasPhase, &[Vec<f64>; 3], &[Vec<f64>; 3]),
     dt: f64,
@@ -523,7 +523,7 @@ impl Coupling {
     /// stencils; returns the gas fraction per cell (Eq. 33 or 37; planar
     /// beds with Hoomans' 2D-to-3D conversion), clamped at
     /// [`MIN_GAS_FRACTION`].
-    pub fn gas_fraction(&mut self, gas: &GasPhase, views: &[Option<ParticleView>]) -> &[f64] {
+    pub fn gas_fraction(&mut self, gas: &GasPhase, views: &[Option<MotionView>]) -> &[f64] {
         let grid = &gas.grid;
         let (cell_strides, _) = strides(grid);
         let hoomans = grid.planar && gas.config.planar_porosity == PlanarPorosity::Hoomans;
@@ -572,7 +572,7 @@ impl Coupling {
     /// per-particle drag coefficients and relaxation factors, and (two-way)
     /// the drag sink and pressure share at the faces. `views` holds the
     /// engine's slots in order (`None` for free slots).
-    pub fn prepare(&mut self, gas: &mut GasPhase, views: &[Option<ParticleView>], dt: f64) {
+    pub fn prepare(&mut self, gas: &mut GasPhase, views: &[Option<MotionView>], dt: f64) {
         self.gas_fraction(gas, views);
         let two_way = gas.config.two_way;
         if two_way {
@@ -623,7 +623,7 @@ impl Coupling {
     /// the gas at its new level. The particles must not have moved since
     /// [`Coupling::prepare`]. Also books the interphase impulse on both
     /// sides.
-    pub fn kicks(&mut self, gas: &GasPhase, views: &[Option<ParticleView>], dt: f64) -> &[DVec3] {
+    pub fn kicks(&mut self, gas: &GasPhase, views: &[Option<MotionView>], dt: f64) -> &[DVec3] {
         self.kicks.clear();
         // Over a step taken in sub-steps, the means over them (`GasPhase::step`).
         let velocity = gas.flow_step_velocity();
@@ -768,15 +768,13 @@ mod tests {
                 (state >> 11) as f64 / (1u64 << 53) as f64
             };
             let extent = grid.h * DVec3::new(grid.n[0] as f64, grid.n[1] as f64, grid.n[2] as f64);
-            let particles: Vec<ParticleView> = (0..40)
-                .map(|i| ParticleView {
+            let particles: Vec<MotionView> = (0..40)
+                .map(|i| MotionView {
                     id: i,
                     pos: grid.lo + extent * DVec3::new(next(), next(), next()),
                     vel: DVec3::ZERO,
-                    omega: DVec3::ZERO,
                     radius: 0.5e-3 + 1.5e-3 * next(),
                     mass: 1e-6,
-                    material: 0,
                 })
                 .collect();
             for p in &particles {
@@ -941,16 +939,14 @@ mod tests {
             }
             let extent = grid.h * DVec3::new(grid.n[0] as f64, grid.n[1] as f64, grid.n[2] as f64);
             // Every cube fits a cell; a free slot among them.
-            let views: Vec<Option<ParticleView>> = (0..60)
+            let views: Vec<Option<MotionView>> = (0..60)
                 .map(|i| {
-                    (i != 7).then(|| ParticleView {
+                    (i != 7).then(|| MotionView {
                         id: i,
                         pos: grid.lo + extent * DVec3::new(next(), next(), next()),
                         vel: DVec3::new(next() - 0.5, next() - 0.5, next() - 0.5),
-                        omega: DVec3::ZERO,
                         radius: 0.2e-3 + (largest - 0.2e-3) * next(),
                         mass: 1e-6 * (1.0 + next()),
-                        material: 0,
                     })
                 })
                 .collect();
@@ -991,7 +987,7 @@ mod tests {
     /// fields), and kicks with the face pressure `gradient`.
     fn all_passes<T: Stencil>(
         g: &GasPhase,
-        views: &[Option<ParticleView>],
+        views: &[Option<MotionView>],
         gradient: &[Vec<f64>; 3],
     ) -> Vec<Vec<u64>> {
         let grid = &g.grid;

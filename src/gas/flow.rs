@@ -12,7 +12,7 @@ use super::config::GasConfig;
 use super::coupling::Coupling;
 use super::solver::{GasError, GasPhase};
 use crate::domain::grid::GridGeometry;
-use crate::engine::{ParticleDynamics, ParticleView};
+use crate::engine::{MotionView, ParticleDynamics};
 
 mod state;
 pub use state::GasRunState;
@@ -45,7 +45,7 @@ fn matched_kicks(
 /// its slot shows (`u64::MAX` for a free slot, which no particle has), for
 /// [`ParticleDynamics::kick_matching`] to give later.
 fn with_ids<'a>(
-    views: &'a [Option<ParticleView>],
+    views: &'a [Option<MotionView>],
     kicks: impl Iterator<Item = DVec3> + 'a,
 ) -> impl Iterator<Item = (u64, DVec3)> + 'a {
     views
@@ -93,7 +93,7 @@ pub struct GasRun {
     predicted: Vec<DVec3>,
     /// Every slot's particle at the start of the current step (a buffer
     /// kept between steps).
-    views: Vec<Option<ParticleView>>,
+    views: Vec<Option<MotionView>>,
     /// Wall-clock time in the gas solver in this process (s): timing only,
     /// not restored from restart files.
     pub solver_wall_seconds: f64,
@@ -188,7 +188,7 @@ impl GasRun {
     /// Gas fraction from the initial particles, before the first step.
     pub fn initialise(&mut self, engine: &impl ParticleDynamics) {
         if self.gas.config.two_way {
-            let views: Vec<_> = engine.particles().map(Some).collect();
+            let views: Vec<_> = engine.particles().map(|p| Some(p.into())).collect();
             let eps = self.coupling.gas_fraction(&self.gas, &views).to_vec();
             // Both levels: the first step sees no change of gas fraction.
             self.gas.set_gas_fraction(&eps);
@@ -337,7 +337,7 @@ impl GasRun {
         (0..engine.slots())
             .into_par_iter()
             .with_min_len(VIEWS_PER_TASK)
-            .map(|i| engine.particle(i))
+            .map(|i| engine.motion_view(i))
             .collect_into_vec(&mut self.views);
     }
 

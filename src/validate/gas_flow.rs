@@ -8,7 +8,7 @@ use std::path::PathBuf;
 use glam::DVec3;
 
 use super::{Case, Measurement, Mode, Part};
-use crate::engine::ParticleView;
+use crate::engine::MotionView;
 use crate::gas::coupling::Coupling;
 use crate::gas::drag::{ergun_pressure_gradient, terminal_velocity};
 use crate::gas::solver::GasPhase;
@@ -151,16 +151,14 @@ fn poiseuille_case(_: Mode) -> Measurement {
 }
 
 /// A particle at rest for the stand-alone gas tests (density `rho_p`).
-pub fn fixed_particle(pos: DVec3, d: f64, rho_p: f64) -> ParticleView {
+pub fn fixed_particle(pos: DVec3, d: f64, rho_p: f64) -> MotionView {
     let r = 0.5 * d;
-    ParticleView {
+    MotionView {
         id: 0,
         pos,
         vel: DVec3::ZERO,
-        omega: DVec3::ZERO,
         radius: r,
         mass: rho_p * 4.0 / 3.0 * std::f64::consts::PI * r.powi(3),
-        material: 0,
     }
 }
 
