@@ -715,23 +715,20 @@ impl<Q: EventQueue> Engine<Q> {
     /// The particle in `slot` at the current time (position wrapped into
     /// the box), or `None` for a free slot.
     pub fn particle(&self, slot: usize) -> Option<ParticleView> {
-        if !self.active[slot] {
-            return None;
-        }
-        let k = &self.kin[slot];
-        Some(ParticleView {
-            id: self.id[slot],
-            pos: self.domain.wrap(k.position_at(self.now)),
-            vel: k.vel,
+        self.motion_view(slot).map(|m| ParticleView {
+            id: m.id,
+            pos: m.pos,
+            vel: m.vel,
             omega: self.spins.get(slot),
-            radius: k.radius,
-            mass: 1.0 / self.inv_mass[slot],
+            radius: m.radius,
+            mass: m.mass,
             material: self.material[slot],
         })
     }
 
-    /// What the gas coupling reads of the particle in `slot` (as
-    /// [`Engine::particle`] gives it); `None` for a free slot.
+    /// What the gas coupling reads of the particle in `slot`: the part of
+    /// [`Engine::particle`] without spin and material; `None` for a free
+    /// slot.
     #[inline]
     pub fn motion_view(&self, slot: usize) -> Option<MotionView> {
         if !self.active[slot] {

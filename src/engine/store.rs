@@ -521,6 +521,15 @@ mod tests {
     use crate::collision::ContactParams;
     use crate::particles::NewParticle;
 
+    /// `particles` in an elastic, walled cube of side 10 m (skin 0.1 m).
+    fn cube_of(particles: &[NewParticle]) -> Engine<crate::queue::CalendarQueue> {
+        let config = super::super::EngineConfig {
+            skin: 0.1,
+            ..Default::default()
+        };
+        walled_cube(10.0, ContactParams::ELASTIC_SMOOTH, config, particles)
+    }
+
     /// The one-pass totals against sums over `particles()` term by term:
     /// mid-flight (positions extrapolated), with a free slot and spins.
     /// The two differ in rounding only (`v / (1/m)` against `(1/(1/m)) v`):
@@ -536,11 +545,7 @@ mod tests {
             material: 0,
         };
         let particles: Vec<NewParticle> = (0..4).map(at).collect();
-        let config = super::super::EngineConfig {
-            skin: 0.1,
-            ..Default::default()
-        };
-        let mut engine = walled_cube(10.0, ContactParams::ELASTIC_SMOOTH, config, &particles);
+        let mut engine = cube_of(&particles);
         engine.advance(0.1);
         engine.end_flow_step();
         engine.remove(1);
@@ -581,11 +586,7 @@ mod tests {
             material: 0,
         };
         let particles: Vec<NewParticle> = (0..4).map(|k| at(1.5 + 2.0 * k as f64)).collect();
-        let config = super::super::EngineConfig {
-            skin: 0.1,
-            ..Default::default()
-        };
-        let mut engine = walled_cube(10.0, ContactParams::ELASTIC_SMOOTH, config, &particles);
+        let mut engine = cube_of(&particles);
         engine.advance(0.1);
         engine.end_flow_step();
         engine.remove(1);

@@ -86,10 +86,8 @@ pub struct GasRun {
     /// steps and in restart files).
     predictor_source: Vec<(u64, DVec3)>,
     predictor_dt: f64,
-    /// Overlapped splitting: the factor on `predictor_source` that gave
-    /// the predicted half kicks before this step's flight, and those kicks
-    /// per slot (computed again beside the flight).
-    predicted_scale: f64,
+    /// Overlapped splitting: the predicted half kick each slot got before
+    /// this step's flight (computed again beside the flight).
     predicted: Vec<DVec3>,
     /// Every slot's particle at the start of the current step (a buffer
     /// kept between steps).
@@ -178,7 +176,6 @@ impl GasRun {
             deferred: Vec::new(),
             predictor_source: Vec::new(),
             predictor_dt: 0.0,
-            predicted_scale: 0.0,
             predicted: Vec::new(),
             views: Vec::new(),
             solver_wall_seconds: 0.0,
@@ -286,8 +283,7 @@ impl GasRun {
         }
         let start = crate::timing::cpu_time();
         self.take_views(engine);
-        self.predicted_scale = 0.5 * (dt / self.predictor_dt);
-        engine.kick_matching(&self.predictor_source, self.predicted_scale);
+        engine.kick_matching(&self.predictor_source, self.predicted_scale(dt));
         self.totals.gas_cpu_seconds += crate::timing::cpu_time() - start;
         true
     }
@@ -304,12 +300,12 @@ impl GasRun {
         self.solve_from_views(dt, crate::timing::thread_cpu_time)?;
         // The predicted halves each slot got, as `predict_kicks` gave them
         // (the views are the particles it kicked).
-        let views = &self.views;
+        let (views, scale) = (&self.views, self.predicted_scale(dt));
         matched_kicks(
             views.len(),
             |slot| views[slot].map(|p| p.id),
             &self.predictor_source,
-            self.predicted_scale,
+            scale,
             &mut self.predicted,
         );
         let rest = (self.coupling.last_kicks().iter()).zip(&self.predicted);
@@ -319,6 +315,12 @@ impl GasRun {
         self.keep_kicks_for_prediction(dt);
         self.totals.gas_cpu_seconds += crate::timing::thread_cpu_time() - start;
         Ok(())
+    }
+
+    /// The factor on `predictor_source` that gives a step of `dt` (s) its
+    /// predicted half kicks: half, scaled by the ratio of the step lengths.
+    fn predicted_scale(&self, dt: f64) -> f64 {
+        0.5 * (dt / self.predictor_dt)
     }
 
     /// Keeps the kicks of the last step, of `dt` (s), with the ids they went

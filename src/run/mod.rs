@@ -488,16 +488,13 @@ impl<Q: EventQueue> FlowLoop<'_, Q> {
         let ((flight, closing, closed), (gas, solved)) = rayon::join(
             || {
                 let (flight, ()) = timed(|| engine.advance(dt));
-                let (closing, closed) = match engine.stall() {
-                    Some(_) => (0.0, None),
-                    None => {
-                        let (t, closed) = timed(|| {
-                            close_flight(s, engine, recorders, guard_watch, *forces, restarts, at)
-                        });
-                        (t, Some(closed))
-                    }
-                };
-                (flight, closing, closed)
+                if engine.stall().is_some() {
+                    return (flight, 0.0, None);
+                }
+                let (closing, closed) = timed(|| {
+                    close_flight(s, engine, recorders, guard_watch, *forces, restarts, at)
+                });
+                (flight, closing, Some(closed))
             },
             || timed(|| g.solve_overlapped(dt)),
         );
