@@ -16,6 +16,7 @@ pub mod build;
 mod diagnose;
 mod feeder;
 pub mod outdir;
+mod placement;
 pub mod recorders;
 pub mod restart;
 pub mod skipped;
@@ -30,6 +31,7 @@ pub use crate::engine::auto_neighbour_search;
 pub use crate::scenario::flow_steps;
 pub use build::{build_engine, engine_domain, material_table};
 use feeder::InletFeeder;
+use placement::PredictionPlacement;
 use recorders::{Recorder, RunEnd, StepEnd};
 
 use crate::engine::{
@@ -345,6 +347,8 @@ struct FlowLoop<'a, Q: EventQueue> {
     /// Anything that acts at flow steps: forces (kicks) or inlet feeding.
     forces: bool,
     clock: WallClock,
+    /// Overlapped splitting: where the re-prediction runs.
+    placement: PredictionPlacement,
     guard_watch: diagnose::GuardWatch,
 }
 
@@ -356,25 +360,6 @@ struct WallClock {
     advance: f64,
     /// Overlapped splitting: time the gas step and the flight ran at once.
     overlapped: f64,
-    /// Overlapped splitting, the last step: the flight without its
-    /// re-prediction of every particle, the gas step, and that
-    /// re-prediction on one thread (s).
-    last_flight_rest: f64,
-    last_gas: f64,
-    last_prediction: f64,
-}
-
-impl WallClock {
-    /// Overlapped splitting on `threads` (≥ 2) threads: whether the
-    /// re-prediction after the kicks should run before the flight, on every
-    /// thread. With the last step's flight rest `R`, gas step `G` and
-    /// re-prediction `P` (one thread), the join then takes about
-    /// `P/n + max(R, G)` instead of `max(R + P, G)`: shorter when
-    /// `R + P (1 − 1/n) > G`.
-    fn predicts_before_flight(&self, threads: usize) -> bool {
-        let share = 1.0 - 1.0 / threads as f64;
-        self.last_flight_rest + share * self.last_prediction > self.last_gas
-    }
 }
 
 /// `f()` and the wall-clock time it took (s).
@@ -467,6 +452,7 @@ impl<Q: EventQueue> FlowLoop<'_, Q> {
             restarts,
             forces,
             clock,
+            placement,
             guard_watch,
             ..
         } = self;
@@ -476,9 +462,8 @@ impl<Q: EventQueue> FlowLoop<'_, Q> {
         let dt = at.dt;
         // The re-prediction is data-parallel; the rest of the flight is not.
         // Results are the same bits wherever it runs.
-        let predicted_before = engine.prediction_wall_seconds();
         let threads = rayon::current_num_threads();
-        let (before, ran) = if threads > 1 && clock.predicts_before_flight(threads) {
+        let (before, ran) = if threads > 1 && placement.before_join() {
             timed(|| engine.predict_now())
         } else {
             (0.0, false)
@@ -499,20 +484,12 @@ impl<Q: EventQueue> FlowLoop<'_, Q> {
             || timed(|| g.solve_overlapped(dt)),
         );
         let both = start.elapsed().as_secs_f64();
-        let prediction = engine.prediction_wall_seconds() - predicted_before;
+        if threads > 1 {
+            placement.end_step(ran, before + both);
+        }
         clock.advance += before + flight;
         clock.gas += gas;
         clock.overlapped += (flight + closing + gas - both).max(0.0);
-        // Timed on every thread when it ran before the flight: its time on
-        // one thread is about that times the threads (an estimate; inside
-        // the join the gas task may take a share, so both are rough).
-        clock.last_prediction = if ran {
-            before * threads as f64
-        } else {
-            prediction
-        };
-        clock.last_flight_rest = flight + closing - (prediction - before).max(0.0);
-        clock.last_gas = gas;
         // A stalled flight is reported first, as without overlap; then the
         // gas step's failure, then what closing the flight found.
         let Some(closed) = closed else {
@@ -751,6 +728,7 @@ fn simulate<Q: EventQueue>(
         recorders,
         restarts,
         clock: WallClock::default(),
+        placement: PredictionPlacement::default(),
         guard_watch: diagnose::GuardWatch::default(),
     };
     let outcome = (first_step..plan.steps)
