@@ -835,3 +835,65 @@ fn figures_redraw_from_committed_results() {
     let o = edpm(&["figures", empty.to_str().unwrap()]);
     assert_clean_failure(&o, &["no figure data"]);
 }
+
+/// The VTK files are written on a thread of their own: when `edpm run`
+/// returns, every frame of both series is on disk and listed, in order.
+#[test]
+fn vtk_series_are_complete_when_the_run_returns() {
+    let dir = fresh_dir("vtk-series");
+    let o = run_into(
+        "scenarios/bubbling-bed-jet.toml",
+        &dir,
+        &["--t-end", "0.05", "--set", "output.vtk_interval=0.01"],
+    );
+    assert_success(&o);
+    // Frames at 0, 10, 20, 30, 40 and 50 ms.
+    for (series, prefix, ext) in [
+        ("particles.pvd", "particles", "vtp"),
+        ("gas.pvd", "gas", "vti"),
+    ] {
+        let pvd = std::fs::read_to_string(dir.join(series)).unwrap();
+        let mut listed_at = 0;
+        for k in 0..6 {
+            let file = format!("vtk/{prefix}_{k:06}.{ext}");
+            let at = pvd.find(&file);
+            assert!(
+                at > Some(listed_at),
+                "{series} lists {file} out of order: {pvd}"
+            );
+            listed_at = at.unwrap();
+            let text = read(&dir.join(&file));
+            assert!(text.starts_with(b"<?xml"), "{file} is not a VTK XML file");
+        }
+        assert!(
+            !pvd.contains(&format!("{prefix}_000006")),
+            "{series}: {pvd}"
+        );
+    }
+    let first = String::from_utf8_lossy(&read(&dir.join("vtk/particles_000005.vtp"))).into_owned();
+    assert!(
+        first.contains("NumberOfPoints=\"2400\""),
+        "every particle in the last frame"
+    );
+}
+
+/// A VTK file that cannot be written stops the run with an error naming
+/// it, although the writing happens on another thread.
+#[test]
+fn a_vtk_write_failure_stops_the_run_naming_the_file() {
+    let dir = fresh_dir("vtk-failure");
+    // A plain file where the run's vtk directory would go.
+    std::fs::write(dir.join("vtk"), b"in the way").unwrap();
+    let o = run_into(
+        "scenarios/bubbling-bed-jet.toml",
+        &dir,
+        &[
+            "--t-end",
+            "0.02",
+            "--force",
+            "--set",
+            "output.vtk_interval=0.01",
+        ],
+    );
+    assert_clean_failure(&o, &["vtk"]);
+}

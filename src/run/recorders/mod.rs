@@ -133,7 +133,7 @@ pub fn for_run<Q: EventQueue>(
             out_dir,
             interval,
             gas.is_some(),
-        )));
+        )?));
     }
     if let Some(interval) = s.output.snapshot_interval {
         engine.set_recording(true);

@@ -5,13 +5,17 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 
-use super::{Recorder, StepEnd, due, next_multiple};
+use super::{Recorder, RunEnd, StepEnd, due, next_multiple};
+use crate::domain::grid::GridGeometry;
 use crate::engine::Engine;
 use crate::gas::flow::GasRun;
+use crate::io::output::BackgroundWriter;
 use crate::io::vtk::{PvdSeries, VtkParticle};
 use crate::queue::EventQueue;
 
-/// VTK snapshots of particles (and gas) with ParaView `.pvd` series.
+/// VTK snapshots of particles (and gas) with ParaView `.pvd` series,
+/// encoded and written on a thread of their own: a run waits only for the
+/// copy of the particles and the gas fields.
 pub struct VtkSeries {
     dir: PathBuf,
     interval: f64,
@@ -19,19 +23,21 @@ pub struct VtkSeries {
     count: usize,
     particles: PvdSeries,
     gas: Option<PvdSeries>,
+    writer: BackgroundWriter,
 }
 
 impl VtkSeries {
-    pub fn new(out_dir: &Path, interval: f64, gas: bool) -> Self {
+    pub fn new(out_dir: &Path, interval: f64, gas: bool) -> anyhow::Result<Self> {
         let dir = out_dir.join("vtk");
-        VtkSeries {
+        Ok(VtkSeries {
             particles: PvdSeries::new(out_dir.join("particles.pvd")),
             gas: gas.then(|| PvdSeries::new(out_dir.join("gas.pvd"))),
             dir,
             interval,
             next: 0.0,
             count: 0,
-        }
+            writer: BackgroundWriter::new("vtk writer")?,
+        })
     }
 
     fn write<Q: EventQueue>(
@@ -39,8 +45,6 @@ impl VtkSeries {
         engine: &Engine<Q>,
         gas: Option<&GasRun>,
     ) -> anyhow::Result<()> {
-        std::fs::create_dir_all(&self.dir)
-            .with_context(|| format!("creating {}", self.dir.display()))?;
         let t = engine.time();
         let name = format!("particles_{:06}.vtp", self.count);
         let particles: Vec<VtkParticle> = engine
@@ -54,40 +58,82 @@ impl VtkSeries {
                 material: p.material,
             })
             .collect();
-        crate::io::vtk::write_particles(&self.dir.join(&name), &particles)?;
         self.particles.push(t, format!("vtk/{name}"));
-        self.particles.write()?;
-        if let (Some(series), Some(g)) = (self.gas.as_mut(), gas) {
-            let name = format!("gas_{:06}.vti", self.count);
-            write_gas_vtk(g, &self.dir.join(&name))?;
-            series.push(t, format!("vtk/{name}"));
-            series.write()?;
-        }
+        let particle_series = self.particles.clone();
+        let gas_frame = match (self.gas.as_mut(), gas) {
+            (Some(series), Some(g)) => {
+                let name = format!("gas_{:06}.vti", self.count);
+                series.push(t, format!("vtk/{name}"));
+                Some((GasFrame::of(g), name, series.clone()))
+            }
+            _ => None,
+        };
+        let dir = self.dir.clone();
+        self.writer.submit(move || {
+            std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+            crate::io::vtk::write_particles(&dir.join(&name), &particles)?;
+            particle_series.write()?;
+            if let Some((frame, name, series)) = gas_frame {
+                frame.write(&dir.join(&name))?;
+                series.write()?;
+            }
+            Ok(())
+        })?;
         self.count += 1;
         self.next = next_multiple(t, self.interval);
         Ok(())
     }
 }
 
-/// The gas fields of `g` as a VTK file for ParaView (format from the
-/// extension: `.vti` XML ImageData in the `.pvd` series).
-fn write_gas_vtk(g: &GasRun, path: &Path) -> anyhow::Result<()> {
-    let empty: &[f64] = &[];
-    let g = &g.gas;
-    crate::io::vtk::write_gas(
-        path,
-        &g.grid,
-        &crate::io::vtk::GasFields {
-            gas_fraction: &g.gas_fraction,
-            pressure: &g.pressure,
-            density: &g.density,
+/// A copy of the gas fields for a VTK file, to be written on the writer's
+/// thread.
+struct GasFrame {
+    grid: GridGeometry,
+    gas_fraction: Vec<f64>,
+    pressure: Vec<f64>,
+    density: Vec<f64>,
+    face_velocity: [Vec<f64>; 3],
+}
+
+impl GasFrame {
+    fn of(g: &GasRun) -> Self {
+        let g = &g.gas;
+        GasFrame {
+            grid: g.grid.clone(),
+            gas_fraction: g.gas_fraction.clone(),
+            pressure: g.pressure.clone(),
+            density: g.density.clone(),
+            // Planar grids carry no z velocity (the writer reads none).
             face_velocity: [
-                &g.velocity[0],
-                &g.velocity[1],
-                if g.grid.planar { empty } else { &g.velocity[2] },
+                g.velocity[0].clone(),
+                g.velocity[1].clone(),
+                if g.grid.planar {
+                    Vec::new()
+                } else {
+                    g.velocity[2].clone()
+                },
             ],
-        },
-    )
+        }
+    }
+
+    /// The fields as a VTK file for ParaView (format from the extension:
+    /// `.vti` XML ImageData in the `.pvd` series).
+    fn write(&self, path: &Path) -> anyhow::Result<()> {
+        crate::io::vtk::write_gas(
+            path,
+            &self.grid,
+            &crate::io::vtk::GasFields {
+                gas_fraction: &self.gas_fraction,
+                pressure: &self.pressure,
+                density: &self.density,
+                face_velocity: [
+                    &self.face_velocity[0],
+                    &self.face_velocity[1],
+                    &self.face_velocity[2],
+                ],
+            },
+        )
+    }
 }
 
 impl<Q: EventQueue> Recorder<Q> for VtkSeries {
@@ -105,5 +151,10 @@ impl<Q: EventQueue> Recorder<Q> for VtkSeries {
             self.write(engine, gas.as_deref())?;
         }
         Ok(())
+    }
+
+    /// Every VTK file is on disk before the run reports its end.
+    fn finish(&mut self, _engine: &mut Engine<Q>, _end: &mut RunEnd) -> anyhow::Result<()> {
+        self.writer.finish()
     }
 }
