@@ -14,9 +14,16 @@ setting run the same trajectory and differ by timing noise only.
 Prints a markdown table: each run's wall seconds per simulated second, the
 medians, and their ratio (results/benchmarks.md, seventeenth session).
 
+The two settings follow different trajectories (a riser is chaotic), so a
+short span also compares two flows. `--same-trajectory` adds overlapped
+splitting on one thread, which gives the same bits as on two: its ratio
+is the speedup of the threads alone on the very same work
+(results/benchmarks.md, twenty-sixth session).
+
 Usage: python3 tools/bench_riser_steady.py [--repeats 3] [--start 1.5]
        [--span 1.0] [--dt 1e-3] [--bin target/release/edpm]
-       [--set KEY=VALUE ...] [SCENARIO (default scenarios/riser-ideal.toml)]
+       [--set KEY=VALUE ...] [--same-trajectory]
+       [SCENARIO (default scenarios/riser-ideal.toml)]
 
 `--set` overrides go to every run (fills included), for instance
 `--set 'engine.cell_shape="square"'` against the default adaptive cells
@@ -32,6 +39,7 @@ import tempfile
 from pathlib import Path
 
 SETTINGS = [("second-order", 1), ("overlapped", 2)]
+SAME_TRAJECTORY = ("overlapped", 1)
 
 
 def edpm(binary, scenario, splitting, threads, out, args):
@@ -52,12 +60,15 @@ def main():
     p.add_argument("--dt", type=float, default=1e-3)
     p.add_argument("--bin", default="target/release/edpm")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
+    p.add_argument("--same-trajectory", action="store_true",
+                   help="also time overlapped splitting on one thread")
     a = p.parse_args()
+    settings = SETTINGS + ([SAME_TRAJECTORY] if a.same_trajectory else [])
     step = ["--set", f"time.dt_flow={a.dt}",
             "--set", f"output.restart_interval={a.start}"]
     for override in a.set:
         step += ["--set", override]
-    walls = {s: [] for s in SETTINGS}
+    walls = {s: [] for s in settings}
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         restarts = {}
@@ -69,7 +80,7 @@ def main():
                  step + ["--t-end", repr(a.start + a.dt)])
             restarts[splitting] = out / "restart.bin"
         for _ in range(a.repeats):
-            for splitting, threads in SETTINGS:
+            for splitting, threads in settings:
                 s = edpm(a.bin, a.scenario, splitting, threads, tmp / "run",
                          step + ["--t-end", repr(a.start + a.span),
                                  "--restart", str(restarts[splitting])])
@@ -83,6 +94,13 @@ def main():
         print(f"| {splitting} | {threads} | {runs} | {statistics.median(w):.2f} |")
     one, two = (statistics.median(walls[s]) for s in SETTINGS)
     print(f"\ntwo threads against one: {one / two:.2f}x")
+    ratios = [x / y for x, y in zip(walls[SETTINGS[0]], walls[SETTINGS[1]])]
+    print("  each repeat: " + ", ".join(f"{r:.2f}x" for r in ratios))
+    if a.same_trajectory:
+        same = statistics.median(walls[SAME_TRAJECTORY])
+        print(f"two threads against one on the same trajectory (overlapped): {same / two:.2f}x")
+        ratios = [x / y for x, y in zip(walls[SAME_TRAJECTORY], walls[SETTINGS[1]])]
+        print("  each repeat: " + ", ".join(f"{r:.2f}x" for r in ratios))
 
 
 if __name__ == "__main__":
