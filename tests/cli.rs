@@ -870,20 +870,38 @@ fn vtk_series_are_complete_when_the_run_returns() {
             "{series}: {pvd}"
         );
     }
-    let first = String::from_utf8_lossy(&read(&dir.join("vtk/particles_000005.vtp"))).into_owned();
+    let last = String::from_utf8_lossy(&read(&dir.join("vtk/particles_000005.vtp"))).into_owned();
     assert!(
-        first.contains("NumberOfPoints=\"2400\""),
+        last.contains("NumberOfPoints=\"2400\""),
         "every particle in the last frame"
     );
 }
 
 /// A VTK file that cannot be written stops the run with an error naming
-/// it, although the writing happens on another thread.
+/// it, although the writing happens on another thread: found at the next
+/// frame, or at the end for the last one. Either way the run is marked
+/// failed in summary.json, and the other outputs are finished.
 #[test]
 fn a_vtk_write_failure_stops_the_run_naming_the_file() {
+    // A plain file where the run's vtk directory would go: the first frame
+    // fails, found when the second is handed over.
     let dir = fresh_dir("vtk-failure");
-    // A plain file where the run's vtk directory would go.
     std::fs::write(dir.join("vtk"), b"in the way").unwrap();
+    let o = run_into(
+        "scenarios/bubbling-bed-jet.toml",
+        &dir,
+        &["--t-end", "0.02", "--set", "output.vtk_interval=0.01"],
+    );
+    assert_clean_failure(&o, &[&format!("creating {}", dir.join("vtk").display())]);
+    assert_eq!(summary(&dir)["status"], "failed");
+
+    // A directory where the last frame (t = 0.02 s) would go: only the
+    // writer's finish at the end of the run finds the failure.
+    let dir = fresh_dir("vtk-failure-last");
+    let blocked = dir.join("vtk/particles_000002.vtp");
+    std::fs::create_dir_all(blocked.join("in-the-way")).unwrap();
+    // (--force: a vtk directory counts as an earlier run's outputs; what
+    // it deletes there are files, never a directory.)
     let o = run_into(
         "scenarios/bubbling-bed-jet.toml",
         &dir,
@@ -895,5 +913,21 @@ fn a_vtk_write_failure_stops_the_run_naming_the_file() {
             "output.vtk_interval=0.01",
         ],
     );
-    assert_clean_failure(&o, &["vtk"]);
+    assert_clean_failure(&o, &[&format!("{}", blocked.display())]);
+    let s = summary(&dir);
+    assert_eq!(s["status"], "failed");
+    assert!(
+        s["error"]
+            .as_str()
+            .unwrap()
+            .contains("particles_000002.vtp"),
+        "{s}"
+    );
+    // The recorders after the VTK series still finished.
+    assert!(dir.join("final_state.bin").exists());
+    assert_eq!(
+        csv_rows(&dir.join("timeseries.csv")).1.len(),
+        3,
+        "samples at 0, 10, 20 ms"
+    );
 }

@@ -38,6 +38,8 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
 /// `submit` or by [`BackgroundWriter::finish`]. Dropped unfinished, it
 /// still completes the jobs given (errors then go unreported).
 pub struct BackgroundWriter {
+    /// The thread's name, for messages.
+    name: String,
     jobs: Option<std::sync::mpsc::SyncSender<WriteJob>>,
     thread: Option<std::thread::JoinHandle<anyhow::Result<()>>>,
 }
@@ -56,6 +58,7 @@ impl BackgroundWriter {
             .spawn(move || queue.into_iter().try_for_each(|job| job()))
             .with_context(|| format!("starting the {name} thread"))?;
         Ok(BackgroundWriter {
+            name: name.to_string(),
             jobs: Some(jobs),
             thread: Some(thread),
         })
@@ -72,7 +75,7 @@ impl BackgroundWriter {
             // The thread stopped at a failure (or finish was called).
             _ => {
                 self.finish()?;
-                anyhow::bail!("the background writer was finished before this file")
+                anyhow::bail!("the {} was finished before this file", self.name)
             }
         }
     }
@@ -83,7 +86,7 @@ impl BackgroundWriter {
         match self.thread.take().map(std::thread::JoinHandle::join) {
             None => Ok(()),
             Some(Ok(written)) => written,
-            Some(Err(_)) => anyhow::bail!("the background writer panicked"),
+            Some(Err(_)) => anyhow::bail!("the {} thread panicked", self.name),
         }
     }
 }

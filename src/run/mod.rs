@@ -731,14 +731,23 @@ fn simulate<Q: EventQueue>(
         placement: PredictionPlacement::default(),
         guard_watch: diagnose::GuardWatch::default(),
     };
-    let outcome = (first_step..plan.steps)
+    let mut outcome = (first_step..plan.steps)
         .try_for_each(|step| run.step(step, plan.dt(step), step + 1 == plan.steps));
     let mut end = RunEnd {
         completed: outcome.is_ok(),
         log_bytes: None,
     };
+    // Every recorder finishes (its files on disk, its writer thread joined)
+    // even when another fails; the first failure fails the run, and
+    // summary.json is still written.
     for r in run.recorders.iter_mut() {
-        r.finish(&mut run.engine, &mut end)?;
+        if let Err(e) = r.finish(&mut run.engine, &mut end) {
+            if outcome.is_ok() {
+                outcome = Err(e);
+            } else {
+                eprintln!("edpm: warning: also, finishing the outputs: {e:#}");
+            }
+        }
     }
     let cpu_seconds = crate::timing::cpu_time() - cpu_start;
     let wall_seconds = wall_start.elapsed().as_secs_f64();

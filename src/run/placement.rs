@@ -14,8 +14,9 @@
 /// Steps in each round of trials: the first step of a round re-predicts
 /// inside the join, the second before it, and the rest where the trials
 /// were faster. Paired trials in consecutive steps time both places on
-/// nearly the same state; one round in 16 costs at most 1/16 of the
-/// difference between the places.
+/// nearly the same state; the trial in the slower place costs about 1/16
+/// of the difference per step. The first round, whose first steps carry
+/// one-off costs, has no trials and re-predicts inside.
 const ROUND_STEPS: u64 = 16;
 
 /// Weight of the newest trial in each place's running mean: about the last
@@ -34,6 +35,9 @@ pub(super) struct PredictionPlacement {
 impl PredictionPlacement {
     /// Whether the coming step re-predicts before the join.
     pub(super) fn before_join(&self) -> bool {
+        if self.steps < ROUND_STEPS {
+            return false;
+        }
         match self.steps % ROUND_STEPS {
             0 => false,
             1 => true,
@@ -44,10 +48,13 @@ impl PredictionPlacement {
     /// Ends a step that re-predicted before the join (`before`) or not, in
     /// `seconds` (s) from the re-prediction's start to the join's end. A
     /// step that was to re-predict before the join but had nothing to
-    /// predict times neither place.
+    /// predict times neither place. (Inside trials are not told whether
+    /// anything was predicted: with gas kicks every step has predictions
+    /// due, and the soft and hybrid models never predict before the join,
+    /// so they stay inside.)
     pub(super) fn end_step(&mut self, before: bool, seconds: f64) {
         let trial = self.steps % ROUND_STEPS;
-        if trial < 2 && (trial == 1) == before {
+        if self.steps >= ROUND_STEPS && trial < 2 && (trial == 1) == before {
             let mean = if before {
                 &mut self.before
             } else {
@@ -85,9 +92,10 @@ mod tests {
     fn the_faster_place_is_used_between_trials() {
         let rest = ROUND_STEPS as usize - 2;
         let mut p = PredictionPlacement::default();
-        // Nothing timed yet: inside, the one-thread path.
-        assert!(!p.before_join());
-        assert_eq!(run_rounds(&mut p, 3, 1.0e-3, 2.0e-3), vec![true; rest]);
+        // The first round: no trials, inside (the one-thread path).
+        assert_eq!(run_rounds(&mut p, 1, 1.0e-3, 2.0e-3), vec![false; rest]);
+        assert_eq!((p.before, p.inside), (None, None));
+        assert_eq!(run_rounds(&mut p, 2, 1.0e-3, 2.0e-3), vec![true; rest]);
         let mut p = PredictionPlacement::default();
         assert_eq!(run_rounds(&mut p, 3, 2.0e-3, 1.0e-3), vec![false; rest]);
     }
@@ -108,6 +116,7 @@ mod tests {
     #[test]
     fn a_trial_with_nothing_to_predict_times_nothing() {
         let mut p = PredictionPlacement::default();
+        run_rounds(&mut p, 1, 1.0, 1.0);
         p.end_step(false, 5.0e-3);
         // The round's second step was to re-predict before the join but
         // had nothing to predict: it is no trial.

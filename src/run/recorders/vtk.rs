@@ -3,8 +3,6 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::Context;
-
 use super::{Recorder, RunEnd, StepEnd, due, next_multiple};
 use crate::domain::grid::GridGeometry;
 use crate::engine::Engine;
@@ -14,8 +12,9 @@ use crate::io::vtk::{PvdSeries, VtkParticle};
 use crate::queue::EventQueue;
 
 /// VTK snapshots of particles (and gas) with ParaView `.pvd` series,
-/// encoded and written on a thread of their own: a run waits only for the
-/// copy of the particles and the gas fields.
+/// encoded and written on a thread of their own: a run waits for the copy
+/// of the particles and the gas fields, and for the disk only when
+/// [`BackgroundWriter::PENDING`] frames already wait.
 pub struct VtkSeries {
     dir: PathBuf,
     interval: f64,
@@ -70,7 +69,6 @@ impl VtkSeries {
         };
         let dir = self.dir.clone();
         self.writer.submit(move || {
-            std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
             crate::io::vtk::write_particles(&dir.join(&name), &particles)?;
             particle_series.write()?;
             if let Some((frame, name, series)) = gas_frame {
