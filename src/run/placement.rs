@@ -24,9 +24,10 @@ const ROUND_STEPS: u64 = 16;
 /// host, a file written) does not move the re-prediction for a round.
 const TRIALS_KEPT: usize = 5;
 
-/// The differences (s) between the two places in the last paired trials:
-/// the wall time from the re-prediction's start to the join's end before
-/// the join minus that inside it, in the step before.
+/// The paired trials of the two places and the choice they make. A
+/// trial's difference (s) is the wall time from the re-prediction's start
+/// to the join's end when it ran before the join, minus that when it ran
+/// inside it, one step earlier.
 #[derive(Debug, Default)]
 pub(super) struct PredictionPlacement {
     steps: u64,
