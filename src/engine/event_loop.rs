@@ -258,19 +258,6 @@ impl<Q: EventQueue> Engine<Q> {
         self.synchronise();
         self.adapt_cell_shape();
         let time = self.time();
-        for i in 0..self.kin.len() {
-            if self.active[i]
-                && self.event_state[i].step_collisions > self.config.max_collisions_per_step
-            {
-                self.collapse_reports.push(CollapseReport {
-                    time,
-                    id: self.id[i],
-                    position: self.domain.wrap(self.kin[i].pos),
-                    collisions: self.event_state[i].step_collisions,
-                });
-            }
-            self.event_state[i].step_collisions = 0;
-        }
         let shift = self.now;
         let sum = self.time_origin + shift;
         self.time_origin_error += if self.time_origin.abs() >= shift.abs() {
@@ -280,21 +267,40 @@ impl<Q: EventQueue> Engine<Q> {
         };
         self.time_origin = sum;
         self.now = 0.0;
-        for k in &mut self.kin {
-            k.time = 0.0;
-        }
-        for e in &mut self.event_state {
-            e.last_collision -= shift;
-        }
-        for c in &mut self.cell_state {
-            c.candidate.time -= shift;
-        }
-        for c in &mut self.list_pairs {
-            c.time -= shift;
-        }
+        self.shift_records_to_origin(shift, time);
         self.needs_prediction = true;
         self.horizon = f64::INFINITY;
         self.retry_pending_reinsertions();
+    }
+
+    /// The per-particle half of [`Engine::end_flow_step`], in one pass over
+    /// the slots: the clock of every record moved back by `shift` (s), the
+    /// step's collision counts reported (at `time`, s) where they passed
+    /// the collapse guard's limit, then cleared.
+    fn shift_records_to_origin(&mut self, shift: f64, time: f64) {
+        let limit = self.config.max_collisions_per_step;
+        let cells = !self.cell_state.is_empty();
+        let pairs = !self.list_pairs.is_empty();
+        for i in 0..self.kin.len() {
+            let state = &mut self.event_state[i];
+            if self.active[i] && state.step_collisions > limit {
+                self.collapse_reports.push(CollapseReport {
+                    time,
+                    id: self.id[i],
+                    position: self.domain.wrap(self.kin[i].pos),
+                    collisions: state.step_collisions,
+                });
+            }
+            state.step_collisions = 0;
+            state.last_collision -= shift;
+            self.kin[i].time = 0.0;
+            if cells {
+                self.cell_state[i].candidate.time -= shift;
+            }
+            if pairs {
+                self.list_pairs[i].time -= shift;
+            }
+        }
     }
 
     /// Re-predicts every particle: the predictions (pure functions of the
