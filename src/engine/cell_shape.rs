@@ -146,9 +146,10 @@ impl<Q: EventQueue> Engine<Q> {
         self.domain.axes.map(|a| a == AxisBoundary::Periodic)
     }
 
-    /// Cells mode, adaptive rule, at a flow-step end (every particle
-    /// synchronised, predictions due): chooses the cell shape from the
-    /// counts since the last choice, and rebuilds the grid when it changes.
+    /// Cells mode, adaptive rule, at a flow-step end before the clock is
+    /// reset (predictions due): chooses the cell shape from the counts
+    /// since the last choice, and synchronises the particles and rebuilds
+    /// the grid when it changes.
     pub(super) fn adapt_cell_shape(&mut self) {
         if self.config.neighbours != NeighbourSearch::Cells
             || self.config.cell_shape != CellShapeRule::Adaptive

@@ -255,8 +255,9 @@ impl<Q: EventQueue> Engine<Q> {
     /// guard and shifts the time origin to now. All events must then be
     /// re-predicted, which happens lazily before the next event.
     pub fn end_flow_step(&mut self) {
-        // A new cell shape synchronises the particles before it regrids
-        // them; otherwise the pass below does.
+        // Before the clock is reset: a new cell shape synchronises the
+        // particles at `now` to regrid them; the pass below synchronises
+        // them (again, over no time, after a new shape).
         self.adapt_cell_shape();
         let time = self.time();
         let shift = self.now;
@@ -275,28 +276,27 @@ impl<Q: EventQueue> Engine<Q> {
     }
 
     /// The per-particle half of [`Engine::end_flow_step`], in one pass over
-    /// the slots: every particle synchronised at `shift` (s, the clock
-    /// before the new origin) as [`Engine::synchronise`] does, the clock
-    /// of every record moved back by `shift`, and the step's collision
-    /// counts reported (at `time`, s) where they passed the collapse
-    /// guard's limit, then cleared.
+    /// the slots: moves the active particles to `shift` (s, the clock
+    /// before the reset) and sets every particle clock to 0; moves the
+    /// recorded times back by `shift`; reports the collision counts over
+    /// the collapse guard's limit at `time` (s), then clears them.
     fn shift_records_to_origin(&mut self, shift: f64, time: f64) {
         let limit = self.config.max_collisions_per_step;
         let cells = !self.cell_state.is_empty();
         let pairs = !self.list_pairs.is_empty();
         for i in 0..self.kin.len() {
+            let state = &mut self.event_state[i];
             if self.active[i] {
                 let k = &mut self.kin[i];
                 k.pos = k.position_at(shift);
-            }
-            let state = &mut self.event_state[i];
-            if self.active[i] && state.step_collisions > limit {
-                self.collapse_reports.push(CollapseReport {
-                    time,
-                    id: self.id[i],
-                    position: self.domain.wrap(self.kin[i].pos),
-                    collisions: state.step_collisions,
-                });
+                if state.step_collisions > limit {
+                    self.collapse_reports.push(CollapseReport {
+                        time,
+                        id: self.id[i],
+                        position: self.domain.wrap(k.pos),
+                        collisions: state.step_collisions,
+                    });
+                }
             }
             state.step_collisions = 0;
             state.last_collision -= shift;
