@@ -5,21 +5,14 @@
 //! otherwise skipped with a note on stderr (`cargo test -- --nocapture`
 //! not needed: the note bypasses the test harness's capture).
 
+mod common;
+
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
+use common::{ROOT, fresh_dir, numpy_available};
 use edpm::io::eventlog::{Block, LogReader};
-
-const MANIFEST_DIR: &str = env!("CARGO_MANIFEST_DIR");
-
-/// True when `python3` can import numpy.
-fn numpy_available() -> bool {
-    Command::new("python3")
-        .args(["-c", "import numpy"])
-        .output()
-        .is_ok_and(|o| o.status.success())
-}
 
 /// A note on the process's stderr: libtest would capture eprintln!.
 fn note(text: &str) {
@@ -52,7 +45,7 @@ fn rust_counts(log: &Path) -> (u64, u64) {
 
 fn python(args: &[&str], log: &Path) -> Output {
     Command::new("python3")
-        .current_dir(MANIFEST_DIR)
+        .current_dir(ROOT)
         .arg("tools/edpm_log.py")
         .args(args)
         .arg(log)
@@ -83,8 +76,8 @@ fn summary_line(args: &[&str], log: &Path) -> serde_json::Value {
 
 fn logged_run(dir: &Path) -> PathBuf {
     let log = dir.join("run.log");
-    let run = Command::new(env!("CARGO_BIN_EXE_edpm"))
-        .current_dir(MANIFEST_DIR)
+    let run = Command::new(common::EDPM)
+        .current_dir(ROOT)
         .args([
             "run",
             "scenarios/box-walls.toml",
@@ -104,13 +97,6 @@ fn logged_run(dir: &Path) -> PathBuf {
         String::from_utf8_lossy(&run.stderr)
     );
     log
-}
-
-fn fresh_dir(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("edpm-python-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
 }
 
 #[test]
@@ -191,7 +177,7 @@ for ca, cb in zip(a["checkpoints"], b["checkpoints"]):
 print("identical")
 "#;
         let o = Command::new("python3")
-            .current_dir(MANIFEST_DIR)
+            .current_dir(ROOT)
             .args(["-c", script])
             .arg(&log)
             .output()

@@ -4,17 +4,12 @@
 //! Needs python3 with numpy. Without numpy the test is skipped with a note
 //! on stderr, as `tests/python_reader.rs` does for its numpy path.
 
+mod common;
+
 use std::io::Write;
 use std::process::Command;
 
-const MANIFEST_DIR: &str = env!("CARGO_MANIFEST_DIR");
-
-fn numpy_available() -> bool {
-    Command::new("python3")
-        .args(["-c", "import numpy"])
-        .output()
-        .is_ok_and(|o| o.status.success())
-}
+use common::{ROOT, fresh_dir, numpy_available};
 
 /// One flight in the probe's format: cell widths 1 × 1 m, grid corner at
 /// the origin, ten particles at y = 0.5 … 9.5 (the 2-slab cut at the
@@ -57,12 +52,11 @@ fn slab_flight_replays_a_schedule_worked_out_by_hand() {
         );
         return;
     }
-    let dir = std::env::temp_dir().join(format!("edpm-slab-flight-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = fresh_dir("flight");
     let path = dir.join("flight.bin");
     std::fs::write(&path, dump()).unwrap();
     let out = Command::new("python3")
-        .current_dir(MANIFEST_DIR)
+        .current_dir(ROOT)
         .arg("tools/slab_flight.py")
         .arg(&path)
         .output()

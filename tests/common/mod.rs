@@ -1,4 +1,4 @@
-//! Helpers shared by the tests that drive the `edpm` binary.
+//! Helpers shared by the tests that drive the `edpm` binary and the Python tools.
 
 // Each test crate uses its own subset.
 #![allow(dead_code)]
@@ -17,6 +17,14 @@ pub fn fresh_dir(name: &str) -> PathBuf {
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
     dir
+}
+
+/// True when `python3` can import numpy (the tools' optional fast path).
+pub fn numpy_available() -> bool {
+    Command::new("python3")
+        .args(["-c", "import numpy"])
+        .output()
+        .is_ok_and(|o| o.status.success())
 }
 
 pub fn s(p: &Path) -> &str {
