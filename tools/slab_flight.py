@@ -39,9 +39,9 @@ import sys
 
 import numpy as np
 
-# Synchronisation costs tried, in events: 130 ns (a flag round trip
-# between the two vCPUs of the development host) is about half of a riser
-# event (0.27 us) and a jet-bed event; 2 events is a pessimistic bound.
+# Synchronisation costs tried, in events: a flag's round trip between the
+# two vCPUs of the development host took 110-540 ns, half a riser event
+# (0.27 us) to two. The redone-windows column uses the first.
 BARRIER_EVENTS = (0.5, 2.0)
 
 
@@ -111,7 +111,7 @@ def slab_statistics(path):
                     ),
                 }
                 for rule, cuts in rules.items():
-                    counts = critical_path(events, cuts, widths[axis], axis)
+                    counts = critical_path(events, cuts, w, axis)
                     t = totals.setdefault((axis, slabs, rule), [0] * 6)
                     for k, v in enumerate((len(events),) + counts + (1,)):
                         t[k] += v
@@ -128,14 +128,14 @@ def main():
             "| cut normal to | slabs | cuts at the quantiles of | events a flight "
             "| boundary events a flight | surprises a flight | best case, free sync "
             + "".join(f"| best case, sync = {b} events " for b in BARRIER_EVENTS)
-            + "| surprise windows redone, sync = 0.5 events |"
+            + f"| surprise windows redone, sync = {BARRIER_EVENTS[0]} events |"
         )
         print("|---" * (8 + len(BARRIER_EVENTS)) + "|")
         for (axis, slabs, rule), t in sorted(slab_statistics(path).items()):
             n, best, redone, nb, surprises, f = t
             row = f"| {'xy'[axis]} | {slabs} | {rule} | {n / f:.0f} | {nb / f:.1f} | {surprises / f:.1f} | {n / best:.2f} "
             row += "".join(f"| {n / (best + b * nb):.2f} " for b in BARRIER_EVENTS)
-            row += f"| {n / (redone + 0.5 * (nb + surprises)):.2f} "
+            row += f"| {n / (redone + BARRIER_EVENTS[0] * (nb + surprises)):.2f} "
             print(row + "|")
 
 
