@@ -280,6 +280,7 @@ fn run_kicked<Q: EventQueue>(
     let mut sequence = Vec::with_capacity(collisions);
     let mut ties = 0;
     let mut tall_steps = 0u64;
+    let mut skin_changes = 0u64;
     while sequence.len() < collisions {
         let expected = brute_force_next(&engine, case, &shifts);
         let t0 = engine.time();
@@ -305,6 +306,15 @@ fn run_kicked<Q: EventQueue>(
                     let shapes = [None, Some(0), Some(1)];
                     let _ = engine.set_tall_cell_axis(shapes[steps as usize % 3]);
                     tall_steps += u64::from(engine.tall_cell_axis().is_some());
+                } else {
+                    // Thicker shells, then back to the thinnest, step by
+                    // step: lists rebuilt around the particles where they
+                    // are must miss nothing either.
+                    let levels = [0, 2, 1];
+                    engine
+                        .set_skin_level(levels[steps as usize % 3])
+                        .expect("hard spheres in lists mode");
+                    skin_changes += 1;
                 }
                 match kicks {
                     Kicks::Uniform => {
@@ -390,6 +400,8 @@ fn run_kicked<Q: EventQueue>(
     }
     if neighbours == NeighbourSearch::Cells {
         assert!(tall_steps > 0, "{}: the cells never turned tall", case.name);
+    } else {
+        assert!(skin_changes > 0, "{}: the skin never changed", case.name);
     }
     for p in engine.particles() {
         assert!(p.pos.is_finite() && p.vel.is_finite() && p.omega.is_finite());

@@ -306,7 +306,7 @@ fn check_prints_resolved_scenario_and_report() {
     // box-walls.toml has no [engine]: the defaults are filled in.
     assert_eq!(table["engine"]["queue"].as_str(), Some("calendar"));
     assert_eq!(table["engine"]["neighbours"].as_str(), Some("auto"));
-    assert_eq!(table["engine"]["skin"].as_float(), Some(0.2));
+    assert_eq!(table["engine"]["skin"].as_str(), Some("auto"));
     assert!(out.contains("dt_flow = 0.0001  # s"), "{out}");
     let err = stderr(&o);
     for needle in [

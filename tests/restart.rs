@@ -177,6 +177,27 @@ fn a_restarted_box_in_lists_mode_continues_bit_for_bit() {
     );
 }
 
+/// A gas-free riser whose particles fall fast through a dilute planar
+/// box: its list rebuilds grow the adaptive skin (`engine.skin = "auto"`)
+/// before the restart and change it again after, so the restarted run
+/// must rebuild its lists with the file's skin level and go on counting
+/// towards the next choice from the file's counts.
+#[test]
+fn a_restarted_run_with_an_adaptive_skin_continues_bit_for_bit() {
+    let r = restart_is_bit_identical(
+        "adaptive-skin",
+        "scenarios/riser-circulating.toml",
+        "0.1",
+        "0.05",
+        &[],
+    );
+    assert!(
+        r.engine.skin_control.level > 0 && r.engine.counters.skin_changes > 0,
+        "the skin did not grow before the restart: {:?}",
+        r.engine.skin_control
+    );
+}
+
 #[test]
 fn a_killed_run_leaves_a_complete_restart_file_that_continues_it() {
     let dir = fresh_dir("killed");

@@ -99,7 +99,7 @@ fn base_is_valid_and_resolved() {
     assert_eq!(s.wall_contact(0).unwrap().mu, 0.2);
     assert_eq!(s.populations[0].count, 100);
     assert_eq!(s.output.sample_interval, 0.005);
-    assert_eq!(s.engine.skin, 0.2);
+    assert_eq!((s.engine.skin, s.engine.adaptive_skin), (0.2, true));
     assert_eq!(s.source_text, BASE);
     assert_eq!(init(&s).unwrap().len(), 100);
 }
@@ -628,7 +628,24 @@ fn time_engine_output_rules() {
     let long =
         Scenario::from_str_named(BASE, "test.toml", &["output.sample_interval=9".into()]).unwrap();
     assert_eq!(long.output.sample_interval, long.time.t_end);
-    expect_field(with(&["engine.skin=3"]), "engine.skin", "must be in (0, 2]");
+    expect_field(
+        with(&["engine.skin=3"]),
+        "engine.skin",
+        "must be \"auto\" or in (0, 2], got 3.0",
+    );
+    expect_field(
+        with(&["engine.skin=thick"]),
+        "engine.skin",
+        "must be \"auto\" or a number in (0, 2], got \"thick\"",
+    );
+    // A number fixes the skin; "auto" lets it grow from 0.2.
+    let fixed = with(&["engine.skin=0.3"]).unwrap();
+    assert_eq!(
+        (fixed.engine.skin, fixed.engine.adaptive_skin),
+        (0.3, false)
+    );
+    let auto = with(&["engine.skin=auto"]).unwrap();
+    assert_eq!((auto.engine.skin, auto.engine.adaptive_skin), (0.2, true));
     expect_field(
         with(&["engine.queue=fifo"]),
         "engine.queue",

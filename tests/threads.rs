@@ -206,3 +206,18 @@ fn riser_with_tall_cells_is_bit_identical_on_one_and_two_threads() {
     assert_eq!(s["tall_cell_axis"], 1, "the cells never turned tall");
     assert!(s["counters"]["cell_shape_changes"].as_u64() >= Some(1));
 }
+
+/// The jet bed at flow steps of 1.2e-3 s, whose list rebuilds grow the
+/// adaptive skin (`engine.skin = "auto"`) in its first 0.2 s: the choice
+/// comes from event counts, the same whatever the thread count.
+#[test]
+fn jet_bed_with_an_adaptive_skin_is_bit_identical_on_one_and_two_threads() {
+    let scenario = "scenarios/bubbling-bed-jet.toml";
+    let step = ["--set", "time.dt_flow=1.2e-3"];
+    assert_thread_independent(scenario, "0.2", &step);
+    let s = summary(&run(scenario, "0.2", 2, &step));
+    assert!(
+        s["counters"]["skin_changes"].as_u64() >= Some(1),
+        "the skin never grew"
+    );
+}

@@ -2,7 +2,7 @@
 """Reader for edpm's binary data files (docs/data-files.md): analysis
 snapshots (`RUN_DIR/snapshots/NNNNNN.bin`, format version 3), checkpoints
 (`final_state.bin`, format version 2) and restart files (`restart.bin`,
-format version 4). Python standard library only (struct, zlib).
+format version 5). Python standard library only (struct, zlib).
 
     import sys; sys.path.insert(0, "tools")
     from edpm_data import read_snapshot, read_checkpoint, read_snapshots, read_restart
@@ -45,7 +45,7 @@ CHUNK_BYTES = 4096
 # kind: (magic, name in messages, version read, last version without the container)
 SNAPSHOT = (b"EDPMSNAP", "snapshot", 3, 2)
 CHECKPOINT = (b"EDPMCKPT", "checkpoint", 2, 1)
-RESTART = (b"EDPMRST\0", "restart file", 4, 0)
+RESTART = (b"EDPMRST\0", "restart file", 5, 0)
 KINDS = {SNAPSHOT[0]: SNAPSHOT, CHECKPOINT[0]: CHECKPOINT, RESTART[0]: RESTART}
 
 

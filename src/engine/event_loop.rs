@@ -259,6 +259,7 @@ impl<Q: EventQueue> Engine<Q> {
         // particles at `now` to regrid them; the pass below synchronises
         // them (again, over no time, after a new shape).
         self.adapt_cell_shape();
+        self.adapt_skin();
         let time = self.time();
         let shift = self.now;
         let sum = self.time_origin + shift;

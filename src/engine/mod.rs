@@ -24,6 +24,7 @@ mod neighbour_search;
 mod pair_sweep;
 mod partner_lanes;
 mod records;
+mod skin;
 mod soft_stepper;
 mod state;
 mod store;
@@ -35,6 +36,7 @@ pub use records::{
     BadParticle, CollapseReport, CollisionRecord, Counters, ElasticRule, Partner, Record,
     StallReport, State,
 };
+pub use skin::{SKIN_LEVELS, SkinControl};
 pub use soft_stepper::SoftStats;
 pub use state::{EngineState, SlotState};
 pub use store::{MotionTotals, MotionView, ParticleView};
@@ -88,6 +90,9 @@ pub struct EngineConfig {
     /// Cells mode: whether cells turn tall along a streaming axis between
     /// flow steps ([`cell_shape`]).
     pub cell_shape: CellShapeRule,
+    /// Lists mode, hard spheres: whether the skin moves between `skin` and
+    /// twice that at flow-step ends with the list rebuild rate ([`skin`]).
+    pub adaptive_skin: bool,
 }
 
 /// Whether the partner searches gather candidates in batches and prefetch
@@ -214,6 +219,7 @@ impl Default for EngineConfig {
             prefetch: Prefetch::Auto,
             keep_pairs: false,
             cell_shape: CellShapeRule::Square,
+            adaptive_skin: false,
         }
     }
 }
@@ -294,6 +300,13 @@ pub struct Engine<Q: EventQueue> {
     cells: CellGrid,
     /// Cells mode: the cell shape and the counts that choose it.
     cell_shape: CellShape,
+    /// Lists mode with [`EngineConfig::adaptive_skin`]: the skin level and
+    /// the counts that choose it.
+    skin_control: SkinControl,
+    /// The skin of the first level (m) and the most a periodic axis allows
+    /// (m; `INFINITY` without one).
+    base_skin: f64,
+    skin_limit: f64,
     queue: Q,
     rng: Xoshiro256PlusPlus,
 
@@ -386,6 +399,8 @@ impl<Q: EventQueue> Engine<Q> {
             )));
         }
         let size = domain.size();
+        let base_skin = config.skin;
+        let mut skin_limit = f64::INFINITY;
         // Minimum image requires every possible list partner to lie within
         // half a box length on periodic axes: 2 (R_max + δ) ≤ L/2.
         for axis in 0..3 {
@@ -397,6 +412,7 @@ impl<Q: EventQueue> Engine<Q> {
                         size[axis], r_max
                     )));
                 }
+                skin_limit = skin_limit.min(limit);
                 config.skin = config.skin.min(limit);
             }
         }
@@ -444,6 +460,9 @@ impl<Q: EventQueue> Engine<Q> {
         let mut engine = Engine {
             cells: CellGrid::new(domain.lo, domain.hi, DVec3::splat(cell_width), periodic, n),
             cell_shape: CellShape::default(),
+            skin_control: SkinControl::default(),
+            base_skin,
+            skin_limit,
             domain,
             materials,
             r_max,
@@ -673,7 +692,7 @@ impl<Q: EventQueue> Engine<Q> {
     }
 
     /// Neighbour-shell thickness in use (m), after clamping for small
-    /// periodic boxes.
+    /// periodic boxes; with an adaptive skin, the current level's.
     pub fn skin(&self) -> f64 {
         self.config.skin
     }

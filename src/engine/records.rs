@@ -120,6 +120,8 @@ pub struct Counters {
     pub neighbour_updates: u64,
     /// Cells mode: times the cell shape changed ([`super::CellShapeRule`]).
     pub cell_shape_changes: u64,
+    /// Lists mode: times the skin changed ([`super::EngineConfig::adaptive_skin`]).
+    pub skin_changes: u64,
     pub stale_events: u64,
     /// Predicted pair contacts that were not approaching at the contact
     /// (grazing pairs, by round-off) and were re-predicted, not collided.

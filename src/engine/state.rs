@@ -17,8 +17,10 @@ use rand_xoshiro::Xoshiro256PlusPlus;
 use serde::{Deserialize, Serialize};
 
 use super::store::{CellState, EventState, Kinematics, NO_PAIR, PairCandidate, Spins};
-use super::{CellShape, CollapseReport, ContactModel, Counters, Engine, SoftStats};
-use crate::neighbours::{CellEntry, NeighbourLists};
+use super::{
+    CellShape, CollapseReport, ContactModel, Counters, Engine, SKIN_LEVELS, SkinControl, SoftStats,
+};
+use crate::neighbours::{CellEntry, CellGrid, NeighbourLists};
 use crate::particles::NewParticle;
 use crate::queue::EventQueue;
 
@@ -80,6 +82,9 @@ pub struct EngineState {
     /// Cells mode: the cell shape the grid entries refer to, and the counts
     /// behind its next choice.
     pub cell_shape: CellShape,
+    /// Lists mode with an adaptive skin: the level the shells and the grid
+    /// entries refer to, and the counts behind its next choice.
+    pub skin_control: SkinControl,
 }
 
 /// Whether a packed neighbour entry names a slot below `n` and one of the
@@ -215,6 +220,7 @@ impl<Q: EventQueue> Engine<Q> {
                     .collect()
             }),
             cell_shape: self.cell_shape,
+            skin_control: self.skin_control,
         })
     }
 
@@ -266,7 +272,8 @@ impl<Q: EventQueue> Engine<Q> {
         } else if shape.tall_axis.is_some() {
             return Err("a tall cell axis in lists mode".into());
         } else {
-            self.cells.dims()
+            let width = DVec3::splat(2.0 * (self.r_max + self.state_skin(state)?));
+            CellGrid::dims_for(self.domain.size(), width, self.periodic_axes())
         };
         let counted = shape
             .crossings
@@ -296,6 +303,26 @@ impl<Q: EventQueue> Engine<Q> {
             );
         }
         Ok(())
+    }
+
+    /// The skin (m) the shells of `state` were built with: this engine's,
+    /// or with an adaptive skin the level `state` names. `Err` for a level
+    /// or counts an adaptive run cannot have.
+    fn state_skin(&self, state: &EngineState) -> Result<f64, String> {
+        let control = state.skin_control;
+        if !self.adapts_skin() {
+            return Ok(self.config.skin);
+        }
+        if usize::from(control.level) >= SKIN_LEVELS.len()
+            || control.steps >= super::skin::WINDOW_STEPS
+            || control.rebuilds_at_choice > state.counters.neighbour_updates
+            || control.particle_steps > u64::from(control.steps) * state.slots.len() as u64
+        {
+            return Err(format!(
+                "a skin level or counts an adaptive skin cannot have ({control:?})"
+            ));
+        }
+        Ok(self.skin_at_level(control.level))
     }
 
     /// Replaces the state of an engine built from the same scenario with
@@ -332,6 +359,7 @@ impl<Q: EventQueue> Engine<Q> {
         {
             return Err("slot numbers beyond the particle table".into());
         }
+        let skin = self.state_skin(&state)?;
         for (i, s) in state.slots.iter().enumerate().filter(|(_, s)| s.active) {
             if !(s.radius > 0.0 && s.radius <= self.r_max) {
                 return Err(format!(
@@ -342,7 +370,7 @@ impl<Q: EventQueue> Engine<Q> {
             if !(s.pos.is_finite() && s.vel.is_finite() && s.omega.is_finite()) {
                 return Err(format!("slot {i}: position or velocity not finite"));
             }
-            let reach = s.radius + self.config.skin;
+            let reach = s.radius + skin;
             if !self.uses_cells() && s.shell_reach != reach {
                 return Err(format!(
                     "particle {}: its neighbour shell reaches {} m, but radius plus skin is {} m in this scenario (written with another skin)",
@@ -400,6 +428,12 @@ impl<Q: EventQueue> Engine<Q> {
         let occupied: Vec<(u32, u32)> = state.cells.iter().map(|(c, e)| (*c, e.index)).collect();
         if self.uses_cells() {
             self.reshape_cells(state.cell_shape.tall_axis, n);
+        } else if self.adapts_skin() {
+            self.skin_control = state.skin_control;
+            self.config.skin = self.skin_at_level(state.skin_control.level);
+            let (lo, hi, periodic) = (self.domain.lo, self.domain.hi, self.periodic_axes());
+            let width = DVec3::splat(2.0 * (self.r_max + self.config.skin));
+            self.cells.reshape(lo, hi, width, periodic, n);
         }
         self.cells.refill(n, &occupied);
         self.queue = Q::with_capacity(n);

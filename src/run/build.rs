@@ -94,6 +94,7 @@ pub fn build_engine<Q: EventQueue>(s: &Scenario) -> anyhow::Result<Engine<Q>> {
         // Gravity without gas: every kick is uniform.
         keep_pairs: s.gas.is_none() && s.domain.gravity != DVec3::ZERO,
         cell_shape: s.engine.cell_shape,
+        adaptive_skin: s.engine.adaptive_skin,
     };
     Engine::with_capacity_for_radius(
         engine_domain(s),

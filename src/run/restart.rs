@@ -23,7 +23,7 @@ use crate::queue::EventQueue;
 use crate::scenario::Scenario;
 
 /// Payload format version of restart files.
-pub const RESTART_VERSION: u32 = 4;
+pub const RESTART_VERSION: u32 = 5;
 
 /// The container kind of restart files.
 pub const RESTART_KIND: Kind = Kind {

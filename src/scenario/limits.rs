@@ -174,7 +174,13 @@ pub fn inlet_particles(s: &Scenario) -> f64 {
 fn memory_estimate(s: &Scenario, p: Particles) -> MemoryEstimate {
     let planar = s.domain.planar;
     let lists = s.engine.neighbours != super::NeighbourChoice::Cells;
-    let reach = p.d_max * (1.0 + 2.0 * s.engine.skin);
+    // An adaptive skin may reach its thickest level.
+    let skin = if s.engine.adaptive_skin {
+        s.engine.skin * crate::engine::SKIN_LEVELS[crate::engine::SKIN_LEVELS.len() - 1]
+    } else {
+        s.engine.skin
+    };
+    let reach = p.d_max * (1.0 + 2.0 * skin);
     let ratio = reach / p.d_min.max(f64::MIN_POSITIVE);
     // Neighbours within a shell in a dense packing of the smallest particles.
     let list = if planar {

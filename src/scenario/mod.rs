@@ -363,8 +363,11 @@ pub struct EngineSettings {
     /// between flow steps ([`crate::engine::CellShapeRule`]).
     pub cell_shape: crate::engine::CellShapeRule,
     /// Neighbour-shell thickness as a fraction of the largest diameter,
-    /// in (0, 2].
+    /// in (0, 2]; with `adaptive_skin`, the thinnest of its levels.
     pub skin: f64,
+    /// `skin = "auto"` (the default): the skin grows with the list rebuild
+    /// rate between flow steps ([`crate::engine::EngineConfig::adaptive_skin`]).
+    pub adaptive_skin: bool,
     /// `model`: hard spheres (default), soft spheres or the hybrid.
     pub model: crate::engine::ContactModel,
     /// `[engine.soft]`: used unless `model` is hard.

@@ -165,11 +165,20 @@ pub(super) struct RawTime {
 #[serde(deny_unknown_fields)]
 pub(super) struct RawEngine {
     pub queue: Option<crate::queue::QueueKind>,
-    pub skin: Option<f64>,
+    pub skin: Option<RawSkin>,
     pub neighbours: Option<super::NeighbourChoice>,
     pub cell_shape: Option<crate::engine::CellShapeRule>,
     pub model: Option<crate::engine::ContactModel>,
     pub soft: Option<RawSoft>,
+}
+
+/// `[engine] skin`: a thickness (fraction of the largest diameter) or a
+/// word (`"auto"`).
+#[derive(Deserialize)]
+#[serde(untagged)]
+pub(super) enum RawSkin {
+    Fraction(f64),
+    Word(String),
 }
 
 /// `[engine.soft]`.

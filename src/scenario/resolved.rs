@@ -151,11 +151,23 @@ pub fn resolved_toml(s: &Scenario) -> String {
         CellShapeRule::Square => "square",
     };
     w.key("cell_shape", quote(cell_shape), "cells mode");
-    w.key(
-        "skin",
-        float(s.engine.skin),
-        "fraction of the largest diameter",
-    );
+    if s.engine.adaptive_skin {
+        w.key(
+            "skin",
+            quote("auto"),
+            &format!(
+                "lists mode: {} to {} of the largest diameter, growing with the list rebuilds",
+                s.engine.skin * crate::engine::SKIN_LEVELS[0],
+                s.engine.skin * crate::engine::SKIN_LEVELS[crate::engine::SKIN_LEVELS.len() - 1]
+            ),
+        );
+    } else {
+        w.key(
+            "skin",
+            float(s.engine.skin),
+            "fraction of the largest diameter",
+        );
+    }
     let model = match s.engine.model {
         ContactModel::Hard => "hard",
         ContactModel::Soft => "soft",

@@ -921,9 +921,22 @@ fn validate_engine(ctx: &Ctx, raw: Option<raw::RawEngine>) -> R<EngineSettings> 
         Some(e) => (e.queue, e.skin, e.neighbours, e.cell_shape, e.model, e.soft),
         None => (None, None, None, None, None, None),
     };
-    let skin = skin.unwrap_or(DEFAULT_SKIN);
+    let (skin, adaptive_skin) = match skin {
+        None => (DEFAULT_SKIN, true),
+        Some(raw::RawSkin::Word(w)) if w == "auto" => (DEFAULT_SKIN, true),
+        Some(raw::RawSkin::Word(w)) => {
+            return Err(ctx.err(
+                "engine.skin",
+                format!("must be \"auto\" or a number in (0, 2], got {w:?}"),
+            ));
+        }
+        Some(raw::RawSkin::Fraction(skin)) => (skin, false),
+    };
     if !(skin > 0.0 && skin <= 2.0) {
-        return Err(ctx.err("engine.skin", format!("must be in (0, 2], got {skin:?}")));
+        return Err(ctx.err(
+            "engine.skin",
+            format!("must be \"auto\" or in (0, 2], got {skin:?}"),
+        ));
     }
     let model = model.unwrap_or_default();
     let neighbours = neighbours.unwrap_or(NeighbourChoice::Auto);
@@ -936,6 +949,7 @@ fn validate_engine(ctx: &Ctx, raw: Option<raw::RawEngine>) -> R<EngineSettings> 
     Ok(EngineSettings {
         queue: queue.unwrap_or(crate::queue::QueueKind::Calendar),
         skin,
+        adaptive_skin,
         neighbours,
         cell_shape: cell_shape.unwrap_or(crate::engine::CellShapeRule::Adaptive),
         model,
