@@ -631,7 +631,12 @@ fn time_engine_output_rules() {
     expect_field(
         with(&["engine.skin=3"]),
         "engine.skin",
-        "must be \"auto\" or in (0, 2], got 3.0",
+        "must be \"auto\" or a number in (0, 2], got 3.0",
+    );
+    expect_field(
+        with(&["engine.skin=true"]),
+        "engine.skin",
+        "must be \"auto\" or a number in (0, 2], got true",
     );
     expect_field(
         with(&["engine.skin=thick"]),

@@ -259,7 +259,6 @@ impl<Q: EventQueue> Engine<Q> {
         // particles at `now` to regrid them; the pass below synchronises
         // them (again, over no time, after a new shape).
         self.adapt_cell_shape();
-        self.adapt_skin();
         let time = self.time();
         let shift = self.now;
         let sum = self.time_origin + shift;
@@ -271,6 +270,9 @@ impl<Q: EventQueue> Engine<Q> {
         self.time_origin = sum;
         self.now = 0.0;
         self.shift_records_to_origin(shift, time);
+        // After the clock reset: a rebuild's wraps are then recorded at
+        // clock 0 of the coming step, where an event log's replay puts them.
+        self.adapt_skin();
         self.needs_prediction = true;
         self.horizon = f64::INFINITY;
         self.retry_pending_reinsertions();

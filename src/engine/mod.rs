@@ -36,7 +36,7 @@ pub use records::{
     BadParticle, CollapseReport, CollisionRecord, Counters, ElasticRule, Partner, Record,
     StallReport, State,
 };
-pub use skin::{SKIN_LEVELS, SkinControl};
+pub use skin::{SKIN_LEVELS, SkinControl, THICKEST_SKIN_LEVEL};
 pub use soft_stepper::SoftStats;
 pub use state::{EngineState, SlotState};
 pub use store::{MotionTotals, MotionView, ParticleView};

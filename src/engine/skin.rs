@@ -12,9 +12,13 @@
 //! faster; 0.1 or less and 0.6 or more are slower everywhere.
 //!
 //! At each flow-step end the engine counts the rebuilds per particle and
-//! flow step over the last [`WINDOW_STEPS`] steps and moves one level up
-//! above [`GROW_ABOVE`], or one level down where the level below would
-//! still stay under [`SHRINK_BELOW`] (a rate that scales as 1/skin). A
+//! flow-step end over the last [`WINDOW_STEPS`] of them and moves one
+//! level up above [`GROW_ABOVE`], or one level down where the level below
+//! would still stay under [`SHRINK_BELOW`] (a rate that scales as
+//! 1/skin). Each flow-step end re-predicts every particle, which is what a
+//! thicker shell makes dearer: runs with forces end every flow step, runs
+//! without (`edpm run` of a free granular gas) only where an output needs
+//! the particles synchronised, so there the rate is per such end. A
 //! change rebuilds every list. The level changes the round-off of event
 //! times (so the bits of a run, not its physics): a run stays
 //! deterministic whatever the thread count, and a restart file carries the
@@ -31,6 +35,9 @@ use crate::queue::EventQueue;
 /// (`engine.skin = "auto"`: 0.2, 0.3 and 0.4 of the largest diameter).
 /// Thicker shells were slower on every bed measured.
 pub const SKIN_LEVELS: [f64; 3] = [1.0, 1.5, 2.0];
+
+/// The last of [`SKIN_LEVELS`].
+pub const THICKEST_SKIN_LEVEL: f64 = SKIN_LEVELS[SKIN_LEVELS.len() - 1];
 
 /// List rebuilds per particle and flow step above which the skin grows a
 /// level. At the best measured skin the beds of 1e-3–1.2e-3 s flow steps
@@ -92,9 +99,10 @@ impl<Q: EventQueue> Engine<Q> {
         (self.base_skin * SKIN_LEVELS[usize::from(level)]).min(self.skin_limit)
     }
 
-    /// At a flow-step end before the clock is reset: counts the step and,
-    /// after [`WINDOW_STEPS`] of them, chooses the skin level from the
-    /// rebuilds counted since the last choice.
+    /// At a flow-step end, after the clock is reset (every particle
+    /// synchronised at clock 0): counts the step and, after
+    /// [`WINDOW_STEPS`] of them, chooses the skin level from the rebuilds
+    /// counted since the last choice.
     pub(super) fn adapt_skin(&mut self) {
         if !self.adapts_skin() {
             return;
@@ -114,7 +122,8 @@ impl<Q: EventQueue> Engine<Q> {
             particle_steps: 0,
             rebuilds_at_choice: self.counters.neighbour_updates,
         };
-        if let Some(level) = choice {
+        // A periodic box may clamp two levels to the same skin.
+        if let Some(level) = choice.filter(|&l| self.skin_at_level(l) != self.config.skin) {
             self.rebuild_with_skin_level(level);
         }
     }
@@ -155,7 +164,10 @@ impl<Q: EventQueue> Engine<Q> {
         let (lo, hi, periodic) = (self.domain.lo, self.domain.hi, self.periodic_axes());
         let width = DVec3::splat(2.0 * (self.r_max + self.config.skin));
         self.cells.reshape(lo, hi, width, periodic, slots);
-        self.lists = NeighbourLists::new(slots, self.lists.stride());
+        let stride = self.lists.stride();
+        // The old lists go first: never both at once.
+        self.lists = NeighbourLists::default();
+        self.lists = NeighbourLists::new(slots, stride);
         for i in 0..slots {
             if self.active[i] {
                 self.enter_grid(i);

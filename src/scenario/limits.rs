@@ -174,13 +174,16 @@ pub fn inlet_particles(s: &Scenario) -> f64 {
 fn memory_estimate(s: &Scenario, p: Particles) -> MemoryEstimate {
     let planar = s.domain.planar;
     let lists = s.engine.neighbours != super::NeighbourChoice::Cells;
-    // An adaptive skin may reach its thickest level.
-    let skin = if s.engine.adaptive_skin {
-        s.engine.skin * crate::engine::SKIN_LEVELS[crate::engine::SKIN_LEVELS.len() - 1]
+    // An adaptive skin (hard spheres) may reach its thickest level, whose
+    // lists are the longest; its grid is finest at the thinnest, the
+    // configured skin.
+    let thickest = if s.engine.adaptive_skin && s.engine.model == crate::engine::ContactModel::Hard
+    {
+        crate::engine::THICKEST_SKIN_LEVEL
     } else {
-        s.engine.skin
+        1.0
     };
-    let reach = p.d_max * (1.0 + 2.0 * skin);
+    let reach = p.d_max * (1.0 + 2.0 * s.engine.skin * thickest);
     let ratio = reach / p.d_min.max(f64::MIN_POSITIVE);
     // Neighbours within a shell in a dense packing of the smallest particles.
     let list = if planar {
@@ -189,7 +192,11 @@ fn memory_estimate(s: &Scenario, p: Particles) -> MemoryEstimate {
         DENSE_PACKING * 8.0 * ratio.powi(3)
     };
     let list = list.min(p.count).max(24.0);
-    let cell_width = if lists { reach } else { p.d_max };
+    let cell_width = if lists {
+        p.d_max * (1.0 + 2.0 * s.engine.skin)
+    } else {
+        p.d_max
+    };
     let periodic = std::array::from_fn(|a| s.boundaries.is_periodic(a));
     let dims = crate::neighbours::CellGrid::dims_for(
         s.domain.extent(),

@@ -179,6 +179,7 @@ pub(super) struct RawEngine {
 pub(super) enum RawSkin {
     Fraction(f64),
     Word(String),
+    Other(toml::Value),
 }
 
 /// `[engine.soft]`.

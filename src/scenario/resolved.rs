@@ -155,11 +155,15 @@ pub fn resolved_toml(s: &Scenario) -> String {
         w.key(
             "skin",
             quote("auto"),
-            &format!(
-                "lists mode: {} to {} of the largest diameter, growing with the list rebuilds",
-                s.engine.skin * crate::engine::SKIN_LEVELS[0],
-                s.engine.skin * crate::engine::SKIN_LEVELS[crate::engine::SKIN_LEVELS.len() - 1]
-            ),
+            &if s.engine.model == ContactModel::Hard {
+                format!(
+                    "lists mode: {} to {} of the largest diameter, growing with the list rebuilds",
+                    s.engine.skin,
+                    s.engine.skin * crate::engine::THICKEST_SKIN_LEVEL
+                )
+            } else {
+                format!("{} of the largest diameter (soft contacts)", s.engine.skin)
+            },
         );
     } else {
         w.key(

@@ -921,22 +921,21 @@ fn validate_engine(ctx: &Ctx, raw: Option<raw::RawEngine>) -> R<EngineSettings> 
         Some(e) => (e.queue, e.skin, e.neighbours, e.cell_shape, e.model, e.soft),
         None => (None, None, None, None, None, None),
     };
+    let allowed = |got: String| {
+        ctx.err(
+            "engine.skin",
+            format!("must be \"auto\" or a number in (0, 2], got {got}"),
+        )
+    };
     let (skin, adaptive_skin) = match skin {
         None => (DEFAULT_SKIN, true),
         Some(raw::RawSkin::Word(w)) if w == "auto" => (DEFAULT_SKIN, true),
-        Some(raw::RawSkin::Word(w)) => {
-            return Err(ctx.err(
-                "engine.skin",
-                format!("must be \"auto\" or a number in (0, 2], got {w:?}"),
-            ));
-        }
+        Some(raw::RawSkin::Word(w)) => return Err(allowed(format!("{w:?}"))),
+        Some(raw::RawSkin::Other(v)) => return Err(allowed(v.to_string())),
         Some(raw::RawSkin::Fraction(skin)) => (skin, false),
     };
     if !(skin > 0.0 && skin <= 2.0) {
-        return Err(ctx.err(
-            "engine.skin",
-            format!("must be \"auto\" or in (0, 2], got {skin:?}"),
-        ));
+        return Err(allowed(format!("{skin:?}")));
     }
     let model = model.unwrap_or_default();
     let neighbours = neighbours.unwrap_or(NeighbourChoice::Auto);
