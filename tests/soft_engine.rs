@@ -375,6 +375,8 @@ fn hybrid_is_hard_where_nothing_turns_soft() {
                 // lists for the hybrid (soft contacts need lists); the two
                 // searches give the same collisions up to round-off.
                 "engine.neighbours=\"lists\"",
+                // The hybrid's skin is fixed; the hard model's would grow.
+                "engine.skin=0.2",
                 &format!("engine.model=\"{model}\""),
             ],
         );
