@@ -663,6 +663,26 @@ fn close_flight<Q: EventQueue>(
     Ok((end, engine.find_bad_particle()))
 }
 
+/// Lets every recorder finish (its files on disk, its writer thread
+/// joined) even when another fails; the first failure becomes the run's
+/// `outcome`, later ones are printed, and summary.json is still written.
+fn finish_recorders<Q: EventQueue>(
+    recorders: &mut [Box<dyn Recorder<Q>>],
+    engine: &mut Engine<Q>,
+    end: &mut RunEnd,
+    outcome: &mut anyhow::Result<()>,
+) {
+    for r in recorders.iter_mut() {
+        if let Err(e) = r.finish(engine, end) {
+            if outcome.is_ok() {
+                *outcome = Err(e);
+            } else {
+                eprintln!("edpm: warning: also, finishing the outputs: {e:#}");
+            }
+        }
+    }
+}
+
 /// Runs `s` with the queue `Q`: builds the engine and the gas, drives the
 /// flow steps, lets the recorders write, and writes `summary.json` (also
 /// for a failed run).
@@ -737,18 +757,7 @@ fn simulate<Q: EventQueue>(
         completed: outcome.is_ok(),
         log_bytes: None,
     };
-    // Every recorder finishes (its files on disk, its writer thread joined)
-    // even when another fails; the first failure fails the run, and
-    // summary.json is still written.
-    for r in run.recorders.iter_mut() {
-        if let Err(e) = r.finish(&mut run.engine, &mut end) {
-            if outcome.is_ok() {
-                outcome = Err(e);
-            } else {
-                eprintln!("edpm: warning: also, finishing the outputs: {e:#}");
-            }
-        }
-    }
+    finish_recorders(&mut run.recorders, &mut run.engine, &mut end, &mut outcome);
     let cpu_seconds = crate::timing::cpu_time() - cpu_start;
     let wall_seconds = wall_start.elapsed().as_secs_f64();
     let engine = &run.engine;

@@ -151,27 +151,8 @@ pub fn resolved_toml(s: &Scenario) -> String {
         CellShapeRule::Square => "square",
     };
     w.key("cell_shape", quote(cell_shape), "cells mode");
-    if s.engine.adaptive_skin {
-        w.key(
-            "skin",
-            quote("auto"),
-            &if s.engine.model == ContactModel::Hard {
-                format!(
-                    "lists mode: {} to {} of the largest diameter, growing with the list rebuilds",
-                    s.engine.skin,
-                    s.engine.skin * crate::engine::THICKEST_SKIN_LEVEL
-                )
-            } else {
-                format!("{} of the largest diameter (soft contacts)", s.engine.skin)
-            },
-        );
-    } else {
-        w.key(
-            "skin",
-            float(s.engine.skin),
-            "fraction of the largest diameter",
-        );
-    }
+    let (skin, skin_comment) = skin_value(s);
+    w.key("skin", skin, &skin_comment);
     let model = match s.engine.model {
         ContactModel::Hard => "hard",
         ContactModel::Soft => "soft",
@@ -189,6 +170,24 @@ pub fn resolved_toml(s: &Scenario) -> String {
         write_gas(&mut w, s, g);
     }
     w.out
+}
+
+/// `[engine] skin` as the resolved scenario writes it, and its comment.
+fn skin_value(s: &Scenario) -> (String, String) {
+    let e = &s.engine;
+    if !e.adaptive_skin {
+        return (float(e.skin), "fraction of the largest diameter".into());
+    }
+    let comment = if e.model == ContactModel::Hard {
+        format!(
+            "lists mode: {} to {} of the largest diameter, growing with the list rebuilds",
+            e.skin,
+            e.skin * crate::engine::THICKEST_SKIN_LEVEL
+        )
+    } else {
+        format!("{} of the largest diameter (soft contacts)", e.skin)
+    };
+    (quote("auto"), comment)
 }
 
 /// `[boundaries]`: each axis, walls with their material, inlet and outlet.
