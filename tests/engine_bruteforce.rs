@@ -314,7 +314,7 @@ fn run_kicked<Q: EventQueue>(
                     engine
                         .set_skin_level(levels[steps as usize % 3])
                         .expect("hard spheres in lists mode");
-                    skin_changes += 1;
+                    skin_changes += u64::from(engine.skin_level() != 0);
                 }
                 match kicks {
                     Kicks::Uniform => {

@@ -12,7 +12,7 @@
 //! faster; 0.1 or less and 0.6 or more are slower everywhere.
 //!
 //! At each flow-step end the engine counts the rebuilds per particle and
-//! flow-step end over the last [`WINDOW_STEPS`] of them and moves one
+//! flow-step end; after each window of [`WINDOW_STEPS`] of them it moves one
 //! level up above [`GROW_ABOVE`], or one level down where the level below
 //! would still stay under [`SHRINK_BELOW`] (a rate that scales as
 //! 1/skin). Each flow-step end re-predicts every particle, which is what a
@@ -157,6 +157,9 @@ impl<Q: EventQueue> Engine<Q> {
     }
 
     fn rebuild_with_skin_level(&mut self, level: u8) {
+        if level != self.skin_control.level {
+            self.counters.skin_changes += 1;
+        }
         self.synchronise();
         self.skin_control.level = level;
         self.config.skin = self.skin_at_level(level);
@@ -173,7 +176,6 @@ impl<Q: EventQueue> Engine<Q> {
                 self.enter_grid(i);
             }
         }
-        self.counters.skin_changes += 1;
         // Kept pairs were searched in the old lists, up to their expiry.
         self.kicks_uniform = false;
         self.needs_prediction = true;
@@ -243,6 +245,24 @@ mod tests {
         assert!(engine.set_skin_level(3).is_err());
         assert!(engine.set_skin_level(1).is_ok());
         assert_eq!(engine.skin(), 1.5 * 4e-4);
+        assert_eq!(engine.counters.skin_changes, 1);
+        // The same level again rebuilds the lists but changes nothing.
+        assert!(engine.set_skin_level(1).is_ok());
+        assert_eq!(engine.counters.skin_changes, 1);
+        let particle = NewParticle {
+            pos: DVec3::splat(0.05),
+            vel: DVec3::X,
+            omega: DVec3::ZERO,
+            radius: 1e-3,
+            material: 0,
+        };
+        let config = EngineConfig {
+            skin: 4e-4,
+            neighbours: NeighbourSearch::Cells,
+            ..Default::default()
+        };
+        let mut cells = walled_cube(0.1, ContactParams::ELASTIC_SMOOTH, config, &[particle]);
+        assert!(cells.set_skin_level(1).is_err());
     }
 
     #[test]

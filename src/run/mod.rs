@@ -665,7 +665,7 @@ fn close_flight<Q: EventQueue>(
 
 /// Lets every recorder finish (its files on disk, its writer thread
 /// joined) even when another fails; the first failure becomes the run's
-/// `outcome`, later ones are printed, and summary.json is still written.
+/// `outcome`, later ones are printed.
 fn finish_recorders<Q: EventQueue>(
     recorders: &mut [Box<dyn Recorder<Q>>],
     engine: &mut Engine<Q>,
@@ -757,6 +757,7 @@ fn simulate<Q: EventQueue>(
         completed: outcome.is_ok(),
         log_bytes: None,
     };
+    // A failed run still writes summary.json below.
     finish_recorders(&mut run.recorders, &mut run.engine, &mut end, &mut outcome);
     let cpu_seconds = crate::timing::cpu_time() - cpu_start;
     let wall_seconds = wall_start.elapsed().as_secs_f64();
