@@ -88,9 +88,27 @@ impl<Q: EventQueue> Engine<Q> {
     /// Whether this engine chooses its skin between flow steps: lists
     /// mode, hard spheres, [`super::EngineConfig::adaptive_skin`].
     pub(super) fn adapts_skin(&self) -> bool {
-        self.config.adaptive_skin
-            && self.config.neighbours == NeighbourSearch::Lists
-            && self.config.model == ContactModel::Hard
+        self.config.adaptive_skin && self.has_skin_levels()
+    }
+
+    /// Whether this engine's skin can take the levels of [`SKIN_LEVELS`]:
+    /// lists mode, hard spheres.
+    fn has_skin_levels(&self) -> bool {
+        self.config.neighbours == NeighbourSearch::Lists && self.config.model == ContactModel::Hard
+    }
+
+    /// Lists mode: the width (m) of the cells that find the shells of
+    /// `skin` (m): any two overlapping shells lie in neighbouring cells.
+    pub(super) fn list_cell_width(&self, skin: f64) -> DVec3 {
+        DVec3::splat(2.0 * (self.r_max + skin))
+    }
+
+    /// Lists mode: empties the grid and gives it the cells of the skin in
+    /// force, for `slots` slots.
+    pub(super) fn reshape_list_cells(&mut self, slots: usize) {
+        let (lo, hi, periodic) = (self.domain.lo, self.domain.hi, self.periodic_axes());
+        let width = self.list_cell_width(self.config.skin);
+        self.cells.reshape(lo, hi, width, periodic, slots);
     }
 
     /// The skin (m) of `level`: the base skin times its multiple, within
@@ -134,9 +152,7 @@ impl<Q: EventQueue> Engine<Q> {
     /// positions; every particle is then re-predicted. `Err` (nothing
     /// changed) in another mode or for a level beyond the last.
     pub fn set_skin_level(&mut self, level: u8) -> Result<(), EngineError> {
-        if self.config.neighbours != NeighbourSearch::Lists
-            || self.config.model != ContactModel::Hard
-        {
+        if !self.has_skin_levels() {
             return Err(EngineError::Config(
                 "only hard spheres in lists mode have a skin level".into(),
             ));
@@ -164,9 +180,7 @@ impl<Q: EventQueue> Engine<Q> {
         self.skin_control.level = level;
         self.config.skin = self.skin_at_level(level);
         let slots = self.kin.len();
-        let (lo, hi, periodic) = (self.domain.lo, self.domain.hi, self.periodic_axes());
-        let width = DVec3::splat(2.0 * (self.r_max + self.config.skin));
-        self.cells.reshape(lo, hi, width, periodic, slots);
+        self.reshape_list_cells(slots);
         let stride = self.lists.stride();
         // The old lists go first: never both at once.
         self.lists = NeighbourLists::default();

@@ -262,7 +262,7 @@ impl<Q: EventQueue> Engine<Q> {
     /// The cell shape and its counts, the neighbour lists and the cell
     /// entries of `state` ([`Engine::import_state`]): `Err` with the reason
     /// when they cannot belong to this engine.
-    fn check_neighbour_state(&self, state: &EngineState) -> Result<(), String> {
+    fn check_neighbour_state(&self, state: &EngineState, skin: f64) -> Result<(), String> {
         let n = state.slots.len();
         // The grid entries name cells of the state's shape.
         let shape = state.cell_shape;
@@ -272,7 +272,7 @@ impl<Q: EventQueue> Engine<Q> {
         } else if shape.tall_axis.is_some() {
             return Err("a tall cell axis in lists mode".into());
         } else {
-            let width = DVec3::splat(2.0 * (self.r_max + self.state_skin(state)?));
+            let width = self.list_cell_width(skin);
             CellGrid::dims_for(self.domain.size(), width, self.periodic_axes())
         };
         let counted = shape
@@ -338,7 +338,8 @@ impl<Q: EventQueue> Engine<Q> {
             .to_lowercase());
         }
         let n = state.slots.len();
-        self.check_neighbour_state(&state)?;
+        let skin = self.state_skin(&state)?;
+        self.check_neighbour_state(&state, skin)?;
         if let Some(kept) = &state.kept_pairs
             && (!self.keeps_pairs()
                 || kept.len() != n
@@ -359,7 +360,6 @@ impl<Q: EventQueue> Engine<Q> {
         {
             return Err("slot numbers beyond the particle table".into());
         }
-        let skin = self.state_skin(&state)?;
         for (i, s) in state.slots.iter().enumerate().filter(|(_, s)| s.active) {
             if !(s.radius > 0.0 && s.radius <= self.r_max) {
                 return Err(format!(
@@ -430,10 +430,8 @@ impl<Q: EventQueue> Engine<Q> {
             self.reshape_cells(state.cell_shape.tall_axis, n);
         } else if self.adapts_skin() {
             self.skin_control = state.skin_control;
-            self.config.skin = self.skin_at_level(state.skin_control.level);
-            let (lo, hi, periodic) = (self.domain.lo, self.domain.hi, self.periodic_axes());
-            let width = DVec3::splat(2.0 * (self.r_max + self.config.skin));
-            self.cells.reshape(lo, hi, width, periodic, n);
+            self.config.skin = skin;
+            self.reshape_list_cells(n);
         }
         self.cells.refill(n, &occupied);
         self.queue = Q::with_capacity(n);

@@ -177,8 +177,7 @@ fn memory_estimate(s: &Scenario, p: Particles) -> MemoryEstimate {
     // An adaptive skin (hard spheres) may reach its thickest level, whose
     // lists are the longest; its grid is finest at the thinnest, the
     // configured skin.
-    let thickest = if s.engine.adaptive_skin && s.engine.model == crate::engine::ContactModel::Hard
-    {
+    let thickest = if s.engine.skin_grows() {
         crate::engine::THICKEST_SKIN_LEVEL
     } else {
         1.0

@@ -374,6 +374,14 @@ pub struct EngineSettings {
     pub soft: SoftSettings,
 }
 
+impl EngineSettings {
+    /// Whether the skin may grow past `skin` during the run: `"auto"`
+    /// with hard spheres (soft and hybrid runs keep theirs).
+    pub fn skin_grows(&self) -> bool {
+        self.adaptive_skin && self.model == crate::engine::ContactModel::Hard
+    }
+}
+
 /// `[engine.soft]`: stiffness and time step of the soft-sphere model.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SoftSettings {

@@ -178,7 +178,7 @@ fn skin_value(s: &Scenario) -> (String, String) {
     if !e.adaptive_skin {
         return (float(e.skin), "fraction of the largest diameter".into());
     }
-    let comment = if e.model == ContactModel::Hard {
+    let comment = if e.skin_grows() {
         format!(
             "lists mode: {} to {} of the largest diameter, growing with the list rebuilds",
             e.skin,
