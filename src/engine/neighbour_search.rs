@@ -182,7 +182,8 @@ impl<Q: EventQueue> Engine<Q> {
             !wrapped && shells_overlap(d.length_squared(), reach, kin[j as usize].radius, skin)
         });
         self.shell_centres[i] = centre;
-        self.cells.place(i, centre);
+        let cell = self.cells.coords(centre);
+        self.cells.place_in(i, cell);
         let mut linker = ShellLinker {
             i,
             centre,
@@ -198,14 +199,14 @@ impl<Q: EventQueue> Engine<Q> {
         };
         if batched {
             let mut batch: Batch<ShellLinker, LINK_BATCH> = Batch::new(&mut linker, true);
-            self.cells.for_each_near(centre, |j, image| {
+            self.cells.for_each_near_cell(cell, |j, image| {
                 if j as usize != i {
                     batch.offer((j, image));
                 }
             });
             batch.finish();
         } else {
-            self.cells.for_each_near(centre, |j, image| {
+            self.cells.for_each_near_cell(cell, |j, image| {
                 if j as usize != i {
                     linker.take((j, image));
                 }

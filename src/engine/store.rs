@@ -66,9 +66,13 @@ impl From<ParticleView> for NewParticle {
 /// lists are safe, missing pairs would not be), as it did when the grid
 /// stored the reach as f32. Shells store only their centres: the reach
 /// follows from the radius and the skin.
-#[inline]
+#[inline(always)]
 pub(super) fn rounded_reach(reach: f64) -> f64 {
-    f64::from((reach as f32).next_up())
+    // A reach is positive and finite, where `next_up` is the next bit
+    // pattern: the same value without `next_up`'s NaN, zero and sign cases.
+    let rounded = reach as f32;
+    debug_assert!(rounded > 0.0 && rounded < f32::MAX, "shell reach {reach} m");
+    f64::from(f32::from_bits(rounded.to_bits() + 1))
 }
 
 /// Angular velocities (rad/s), one per slot, stored only once some
