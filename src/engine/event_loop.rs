@@ -67,13 +67,23 @@ impl<Q: EventQueue> Engine<Q> {
             0.0
         };
         let (mut events, mut anchor) = (0u64, self.now);
+        let deep = self.prefetches();
         while let Some((t, i)) = self.queue.peek_min() {
             if t >= end {
                 break;
             }
             self.now = t;
-            self.queue
-                .for_each_likely_next(|k| self.prefetch_particle(k as usize));
+            if deep {
+                self.queue.for_each_likely_next(|k| {
+                    self.prefetch_particle(k as usize);
+                    self.prefetch_next_event(k as usize);
+                });
+                self.queue
+                    .for_each_soon(|k| self.prefetch_particle(k as usize));
+            } else {
+                self.queue
+                    .for_each_likely_next(|k| self.prefetch_particle(k as usize));
+            }
             self.process(i as usize);
             if stop_on_soft && !self.turned_soft.is_empty() {
                 return;
@@ -104,6 +114,26 @@ impl<Q: EventQueue> Engine<Q> {
         } else {
             prefetch_at(&self.shell_centres, i);
             self.lists.prefetch(i);
+        }
+    }
+
+    /// Requests the second round of data particle i's coming event reads,
+    /// found from its first round (requested an event or more earlier by
+    /// [`EventQueue::for_each_soon`]): a pair partner's records, and the
+    /// cell heads around i (cells mode) or its list partners' kinematics
+    /// (lists mode). Large systems only, where these loads miss the caches.
+    #[inline(always)]
+    fn prefetch_next_event(&self, i: usize) {
+        let scheduled = self.event_state[i].scheduled;
+        if scheduled.kind == EventKind::Pair {
+            self.prefetch_particle(neighbours::unpack(scheduled.partner).0 as usize);
+        }
+        if self.config.neighbours == NeighbourSearch::Cells {
+            self.cells.prefetch_block(self.cell(i));
+        } else {
+            for &entry in self.lists.list(i) {
+                prefetch_at(&self.kin, neighbours::unpack(entry).0 as usize);
+            }
         }
     }
 

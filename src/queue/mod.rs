@@ -28,6 +28,16 @@ pub trait EventQueue: Send + Sync {
     {
         let _ = f;
     }
+    /// Calls `f` with particles whose events probably come soon after
+    /// those of [`EventQueue::for_each_likely_next`], a few events ahead.
+    /// A hint only, like it. None by default.
+    #[inline]
+    fn for_each_soon(&self, f: impl FnMut(u32))
+    where
+        Self: Sized,
+    {
+        let _ = f;
+    }
     /// Number of particles with an event.
     fn len(&self) -> usize;
     fn is_empty(&self) -> bool {
