@@ -6,6 +6,8 @@
 //! - `collisions`: the event loop of `edpm bench` (elastic spheres,
 //!   periodic cube, N = 4000), time per 1000 pair collisions, with cells
 //!   at φ = 0.1 and 0.3 and lists at φ = 0.45 (the `auto` choices);
+//!   `collisions_large` the same at N = 256000, where the loop prefetches
+//!   the records of the events a few steps ahead;
 //! - `list_rebuild`: renumbering in cell order and rebuilding every
 //!   neighbour list from the slot-only cell grid (`Engine::reorder_by_cell`,
 //!   N = 4000, φ = 0.3 and 0.45), per particle;
@@ -92,13 +94,22 @@ fn melted_engine(n: usize, phi: f64, neighbours: NeighbourSearch) -> Engine<Cale
 }
 
 fn collisions(c: &mut Criterion) {
-    let mut group = c.benchmark_group("collisions");
+    // 4000 spheres span at least 15 diameters a side: cells fit.
+    collisions_at(c, "collisions", 4000);
+    // About 70 MB of state, past the 32 MB L3 of the development hosts,
+    // where the event loop prefetches the records of events a few steps
+    // ahead.
+    collisions_at(c, "collisions_large", 256_000);
+}
+
+/// The `collisions` benchmarks for a system of about `n` spheres.
+fn collisions_at(c: &mut Criterion, name: &str, n: usize) {
+    let mut group = c.benchmark_group(name);
     group.throughput(Throughput::Elements(COLLISIONS));
     group.measurement_time(Duration::from_secs(5));
     for phi in [0.1, 0.3, 0.45] {
-        // 4000 spheres span at least 15 diameters a side: cells fit.
         let neighbours = auto_neighbour_search(phi, false, true);
-        let mut engine = melted_engine(4000, phi, neighbours);
+        let mut engine = melted_engine(n, phi, neighbours);
         let label = match neighbours {
             NeighbourSearch::Lists => "lists",
             NeighbourSearch::Cells => "cells",

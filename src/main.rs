@@ -238,7 +238,8 @@ enum Command {
         #[arg(long, value_enum, default_value = "auto")]
         neighbours: NeighbourArg,
         /// Whether partner searches batch their candidates and prefetch
-        /// their records: `auto` from 32768 particles; results are the
+        /// their records: `auto` where the particles' kinematics (64 bytes
+        /// each) outgrow the L2 cache; results are the
         /// same bit for bit either way.
         #[arg(long, value_enum, default_value = "auto")]
         prefetch: PrefetchArg,

@@ -31,6 +31,45 @@ fn prefetch_address<T>(address: *const T) {
     let _ = address;
 }
 
+/// Size of this CPU's per-core L2 cache in bytes (Linux sysfs), or 2 MiB
+/// where it cannot be read. Read once. Whether a system's records fit in
+/// it decides whether prefetching pays (`engine::Prefetch::Auto`).
+pub fn l2_cache_bytes() -> usize {
+    static BYTES: std::sync::OnceLock<usize> = std::sync::OnceLock::new();
+    *BYTES.get_or_init(|| read_l2_cache_bytes().unwrap_or(2 << 20))
+}
+
+fn read_l2_cache_bytes() -> Option<usize> {
+    let base = std::path::Path::new("/sys/devices/system/cpu/cpu0/cache");
+    for entry in std::fs::read_dir(base).ok()?.flatten() {
+        let read = |name: &str| std::fs::read_to_string(entry.path().join(name)).ok();
+        let level = read("level")?;
+        let kind = read("type")?;
+        if level.trim() == "2" && kind.trim() != "Instruction" {
+            return parse_cache_size(&read("size")?);
+        }
+    }
+    None
+}
+
+/// Bytes of a sysfs cache size such as `512K`, `2048K` or `1M`.
+fn parse_cache_size(text: &str) -> Option<usize> {
+    let text = text.trim();
+    let (digits, unit) = match text.strip_suffix(['K', 'M']) {
+        Some(digits) => (
+            digits,
+            if text.ends_with('K') {
+                1 << 10
+            } else {
+                1 << 20
+            },
+        ),
+        None => (text, 1),
+    };
+    let bytes = digits.parse::<usize>().ok()?.checked_mul(unit)?;
+    (bytes > 0).then_some(bytes)
+}
+
 /// A consumer of candidates (pair partners, shell neighbours) that can
 /// request a candidate's data before it takes the candidate in.
 pub trait Gather {
@@ -123,5 +162,15 @@ mod tests {
         }
         batch.finish();
         assert_eq!(log.0, (0..10).collect::<Vec<_>>());
+    }
+
+    #[test]
+    fn cache_sizes_parse_as_sysfs_writes_them() {
+        assert_eq!(parse_cache_size("512K\n"), Some(512 << 10));
+        assert_eq!(parse_cache_size("2048K"), Some(2 << 20));
+        assert_eq!(parse_cache_size("1M"), Some(1 << 20));
+        assert_eq!(parse_cache_size("65536"), Some(65536));
+        assert_eq!(parse_cache_size("0K"), None);
+        assert_eq!(parse_cache_size("big"), None);
     }
 }

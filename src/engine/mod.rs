@@ -101,7 +101,8 @@ pub struct EngineConfig {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum Prefetch {
-    /// From [`PREFETCH_MIN_SLOTS`] particle slots, where it pays.
+    /// Where the particles' kinematics outgrow the L2 cache, where it pays
+    /// ([`Engine::prefetches`]).
     #[default]
     Auto,
     Always,
@@ -179,10 +180,6 @@ pub const CELLS_BELOW_FRACTION: f64 = 0.325;
 /// the particles into a bed (lists are 2x faster in the bed that forms:
 /// measured on scenarios/box-walls.toml).
 pub const CELLS_BELOW_FRACTION_IN_BEDS: f64 = 0.02;
-
-/// Slots from which the partner searches prefetch ([`Engine::prefetches`]):
-/// 2 MiB of 64-byte kinematics, the size of this machine's L2 cache.
-pub const PREFETCH_MIN_SLOTS: usize = 1 << 15;
 
 /// The `auto` neighbour search, shared by `edpm run`, `edpm bench` and the
 /// resolved scenario: cells when the solids fraction is below
@@ -838,16 +835,22 @@ impl<Q: EventQueue> Engine<Q> {
     }
 
     /// Whether the partner searches gather their candidates in batches and
-    /// prefetch their records ([`crate::prefetch`]): only for systems whose
-    /// kinematics outgrow a 2 MiB cache, where most of those loads miss.
-    /// Below, the batches cost more than they save (`edpm bench --n 10976`:
-    /// 5–6 % fewer collisions per CPU second at φ = 0.3 and 0.45;
-    /// results/benchmarks.md). Either way the candidates are evaluated in
-    /// the same order, so the results are the same bit for bit.
+    /// prefetch their records, and the event loop the records of the next
+    /// few events ([`crate::prefetch`]): only for systems whose kinematics
+    /// outgrow the host's L2 cache, where most of those loads miss. Below,
+    /// the batches cost more than they save. `edpm bench --n 10976` (702 kB
+    /// of kinematics): 5–6 % fewer collisions per CPU second at φ = 0.3 and
+    /// 0.45 with a 2 MiB L2, 15–25 % more with 512 kB; at N = 4000 with
+    /// 512 kB, 0.96–1.10 (results/benchmarks.md, twenty-ninth session).
+    /// Either way the candidates are evaluated in the same order, so the
+    /// results are the same bit for bit.
     #[inline]
     pub(super) fn prefetches(&self) -> bool {
         match self.config.prefetch {
-            Prefetch::Auto => self.kin.len() >= PREFETCH_MIN_SLOTS,
+            Prefetch::Auto => {
+                self.kin.len() * std::mem::size_of::<Kinematics>()
+                    > crate::prefetch::l2_cache_bytes()
+            }
             Prefetch::Always => true,
             Prefetch::Never => false,
         }
