@@ -36,35 +36,34 @@ fn prefetch_address<T>(address: *const T) {
 /// it decides whether prefetching pays (`engine::Prefetch::Auto`).
 pub fn l2_cache_bytes() -> usize {
     static BYTES: std::sync::OnceLock<usize> = std::sync::OnceLock::new();
-    *BYTES.get_or_init(|| read_l2_cache_bytes().unwrap_or(2 << 20))
+    *BYTES.get_or_init(|| {
+        l2_cache_bytes_in(std::path::Path::new("/sys/devices/system/cpu/cpu0/cache"))
+            .unwrap_or(2 << 20)
+    })
 }
 
-fn read_l2_cache_bytes() -> Option<usize> {
-    let base = std::path::Path::new("/sys/devices/system/cpu/cpu0/cache");
-    for entry in std::fs::read_dir(base).ok()?.flatten() {
+/// The L2 size in a sysfs cache directory: its `index*` entries each name
+/// a cache's `level`, `type` and `size`; other entries (`uevent`) are
+/// skipped.
+fn l2_cache_bytes_in(dir: &std::path::Path) -> Option<usize> {
+    std::fs::read_dir(dir).ok()?.flatten().find_map(|entry| {
         let read = |name: &str| std::fs::read_to_string(entry.path().join(name)).ok();
-        let level = read("level")?;
-        let kind = read("type")?;
-        if level.trim() == "2" && kind.trim() != "Instruction" {
-            return parse_cache_size(&read("size")?);
-        }
-    }
-    None
+        let unified_or_data = read("type")?.trim() != "Instruction";
+        (read("level")?.trim() == "2" && unified_or_data)
+            .then(|| parse_cache_size(&read("size")?))
+            .flatten()
+    })
 }
 
 /// Bytes of a sysfs cache size such as `512K`, `2048K` or `1M`.
 fn parse_cache_size(text: &str) -> Option<usize> {
     let text = text.trim();
-    let (digits, unit) = match text.strip_suffix(['K', 'M']) {
-        Some(digits) => (
-            digits,
-            if text.ends_with('K') {
-                1 << 10
-            } else {
-                1 << 20
-            },
-        ),
-        None => (text, 1),
+    let (digits, unit) = if let Some(kib) = text.strip_suffix('K') {
+        (kib, 1 << 10)
+    } else if let Some(mib) = text.strip_suffix('M') {
+        (mib, 1 << 20)
+    } else {
+        (text, 1)
     };
     let bytes = digits.parse::<usize>().ok()?.checked_mul(unit)?;
     (bytes > 0).then_some(bytes)
@@ -162,6 +161,32 @@ mod tests {
         }
         batch.finish();
         assert_eq!(log.0, (0..10).collect::<Vec<_>>());
+    }
+
+    /// A directory laid out as sysfs lays out a CPU's caches, with the
+    /// entry that is not a cache first, as `read_dir` lists it on the
+    /// development host (the first version gave up at it and fell back).
+    #[test]
+    fn the_l2_is_found_among_the_other_caches() {
+        let dir = std::env::temp_dir().join(format!("edpm-cache-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).expect("a temporary directory");
+        std::fs::write(dir.join("uevent"), "").expect("a file");
+        for (index, level, kind, size) in [
+            ("index0", "1", "Data", "32K"),
+            ("index1", "1", "Instruction", "32K"),
+            ("index2", "2", "Unified", "512K"),
+            ("index3", "3", "Unified", "32768K"),
+        ] {
+            let cache = dir.join(index);
+            std::fs::create_dir(&cache).expect("a cache directory");
+            for (name, text) in [("level", level), ("type", kind), ("size", size)] {
+                std::fs::write(cache.join(name), format!("{text}\n")).expect("a file");
+            }
+        }
+        let found = l2_cache_bytes_in(&dir);
+        std::fs::remove_dir_all(&dir).expect("the directory removed");
+        assert_eq!(found, Some(512 << 10));
     }
 
     #[test]

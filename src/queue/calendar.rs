@@ -629,16 +629,23 @@ mod tests {
     use rand::{RngExt, SeedableRng};
     use rand_xoshiro::Xoshiro256PlusPlus;
 
-    /// The prefetch hint names the event that follows the minimum in most
-    /// hold steps (it is a hint: the order itself is tested elsewhere).
-    #[test]
-    fn likely_next_is_usually_the_next_event() {
-        let mut rng = Xoshiro256PlusPlus::seed_from_u64(3);
-        let n = 2000;
+    /// A queue of `n` particles with event times uniform in [0, 1), and the
+    /// generator (seeded `seed`) that drew them.
+    fn uniform_queue(n: u32, seed: u64) -> (CalendarQueue, Xoshiro256PlusPlus) {
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
         let mut q = CalendarQueue::with_capacity(n as usize);
         for i in 0..n {
             q.set(i, rng.random::<f64>());
         }
+        (q, rng)
+    }
+
+    /// The prefetch hint names the event that follows the minimum in most
+    /// hold steps (it is a hint: the order itself is tested elsewhere).
+    #[test]
+    fn likely_next_is_usually_the_next_event() {
+        let n = 2000;
+        let (mut q, mut rng) = uniform_queue(n, 3);
         let (mut named, steps) = (0, 20000);
         for _ in 0..steps {
             let (t, i) = q.peek_min().expect("every particle has an event");
@@ -660,12 +667,8 @@ mod tests {
     /// steps, which is what gives its prefetches time to land.
     #[test]
     fn soon_names_events_a_few_steps_ahead() {
-        let mut rng = Xoshiro256PlusPlus::seed_from_u64(5);
         let n = 20000;
-        let mut q = CalendarQueue::with_capacity(n as usize);
-        for i in 0..n {
-            q.set(i, rng.random::<f64>());
-        }
+        let (mut q, mut rng) = uniform_queue(n, 5);
         const AHEAD: usize = 3;
         let mut hinted: std::collections::VecDeque<Vec<u32>> = Default::default();
         let (mut named, steps) = (0, 20000);
