@@ -73,19 +73,15 @@ impl<Q: EventQueue> Engine<Q> {
                 break;
             }
             self.now = t;
-            // Two copies of the hint, not one with the test inside: written
-            // once, the loop ran 9 % more instructions (callgrind, `edpm
-            // bench --n 10976 --phi 0.3`), its inlining changed.
-            if deep {
-                self.queue.for_each_likely_next(|k| {
-                    self.prefetch_particle(k as usize);
+            self.queue.for_each_likely_next(|k| {
+                self.prefetch_particle(k as usize);
+                if deep {
                     self.prefetch_next_event(k as usize);
-                });
+                }
+            });
+            if deep {
                 self.queue
                     .for_each_soon(|k| self.prefetch_particle(k as usize));
-            } else {
-                self.queue
-                    .for_each_likely_next(|k| self.prefetch_particle(k as usize));
             }
             self.process(i as usize);
             if stop_on_soft && !self.turned_soft.is_empty() {
