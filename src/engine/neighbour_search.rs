@@ -184,12 +184,15 @@ impl<Q: EventQueue> Engine<Q> {
         self.shell_centres[i] = centre;
         let cell = self.cells.coords(centre);
         self.cells.place_in(i, cell);
+        let max_partner_reach = rounded_reach(self.r_max + self.config.skin);
+        // Cells whose shells cannot reach i's are not scanned.
+        let linking_distance = reach + max_partner_reach;
         let mut linker = ShellLinker {
             i,
             centre,
             reach,
             skin: self.config.skin,
-            max_partner_reach: rounded_reach(self.r_max + self.config.skin),
+            max_partner_reach,
             periodic: self.periodic,
             lists: &mut self.lists,
             domain: &self.domain,
@@ -199,18 +202,20 @@ impl<Q: EventQueue> Engine<Q> {
         };
         if batched {
             let mut batch: Batch<ShellLinker, LINK_BATCH> = Batch::new(&mut linker, true);
-            self.cells.for_each_near_cell(cell, |j, image| {
-                if j as usize != i {
-                    batch.offer((j, image));
-                }
-            });
+            self.cells
+                .for_each_near_cell_within(cell, centre, linking_distance, |j, image| {
+                    if j as usize != i {
+                        batch.offer((j, image));
+                    }
+                });
             batch.finish();
         } else {
-            self.cells.for_each_near_cell(cell, |j, image| {
-                if j as usize != i {
-                    linker.take((j, image));
-                }
-            });
+            self.cells
+                .for_each_near_cell_within(cell, centre, linking_distance, |j, image| {
+                    if j as usize != i {
+                        linker.take((j, image));
+                    }
+                });
         }
         let mut mask = 0u8;
         for axis in 0..3 {
