@@ -633,9 +633,11 @@ impl CellGrid {
                 rows_per_z = k;
             }
         }
-        // Positions, cell edges and image shifts are rounded at the scale
-        // of the coordinates: a few ulps of it, generously.
-        let scale = self.lo.abs().max_element() + p.abs().max_element() + radius;
+        // Positions, cell edges and image shifts (up to a box length) are
+        // rounded at the scale of the coordinates: a few ulps of it,
+        // generously.
+        let hi = self.lo + self.width * DVec3::from_array(self.cells.map(|n| n as f64));
+        let scale = self.lo.abs().max_element() + hi.abs().max_element() + p.abs().max_element();
         let limit = radius + 64.0 * f64::EPSILON * scale;
         let limit2 = limit * limit;
         let mut bits = 0u64;
@@ -1191,8 +1193,15 @@ mod tests {
             let (mut offered, mut near_cells_offered, mut within) = (0, 0, 0);
             let lo = DVec3::new(-1.0, 2.0, 0.5);
             let mut g = CellGrid::new(lo, lo + size, width, periodic, 200);
+            // Some on the box's faces and cell edges, as wraps can leave them.
             let points: Vec<DVec3> = (0..200)
-                .map(|_| lo + DVec3::from_array(size.to_array().map(|l| rng.random_range(0.0..=l))))
+                .map(|k| {
+                    lo + DVec3::from_array(size.to_array().map(|l| match k % 10 {
+                        0 => l,
+                        1 => rng.random_range(0.0..=l).floor(),
+                        _ => rng.random_range(0.0..=l),
+                    }))
+                })
                 .collect();
             for (i, &p) in points.iter().enumerate() {
                 g.place(i, p);
