@@ -184,15 +184,15 @@ impl<Q: EventQueue> Engine<Q> {
         self.shell_centres[i] = centre;
         let cell = self.cells.coords(centre);
         self.cells.place_in(i, cell);
-        let max_partner_reach = rounded_reach(self.r_max + self.config.skin);
-        // Cells whose shells cannot reach i's are not scanned.
-        let linking_distance = reach + max_partner_reach;
+        // No shell reaches farther than the largest, rounded as stored:
+        // the cells beyond are not scanned.
+        let linking_distance = reach + rounded_reach(self.r_max + self.config.skin);
         let mut linker = ShellLinker {
             i,
             centre,
             reach,
             skin: self.config.skin,
-            max_partner_reach,
+            linking_distance,
             periodic: self.periodic,
             lists: &mut self.lists,
             domain: &self.domain,
@@ -262,8 +262,9 @@ struct ShellLinker<'a> {
     centre: DVec3,
     reach: f64,
     skin: f64,
-    /// The largest partner shell radius, rounded as stored (m).
-    max_partner_reach: f64,
+    /// `reach` plus the largest partner shell radius, rounded as stored
+    /// (m): no linked partner's centre is farther.
+    linking_distance: f64,
     periodic: bool,
     lists: &'a mut NeighbourLists,
     domain: &'a Domain,
@@ -298,8 +299,7 @@ impl Gather for ShellLinker<'_> {
         let distance_squared = d.length_squared();
         // The partner's radius only for shells near enough to overlap at
         // the largest radius (its kinematics are another cache line).
-        let reach_sum = self.reach + self.max_partner_reach;
-        if distance_squared < reach_sum * reach_sum
+        if distance_squared < self.linking_distance * self.linking_distance
             && shells_overlap(distance_squared, self.reach, self.kin[j].radius, self.skin)
         {
             // Entry in i's list: j appears shifted by `code` relative to i.
