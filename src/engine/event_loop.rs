@@ -348,16 +348,21 @@ impl<Q: EventQueue> Engine<Q> {
     /// keeps its pair (cells mode, and lists mode with
     /// [`super::EngineConfig::keep_pairs`]; [`Engine::prediction_after_uniform_kick`]),
     /// and after other kicks finds every particle's pair in one sweep that
-    /// tests each pair once ([`Engine::sweep_pairs`]).
+    /// tests each pair once ([`Engine::sweep_pairs`], [`Engine::sweep_list_pairs`]).
     #[inline]
     pub(super) fn predict_all(&mut self) {
         let cells = self.config.neighbours == NeighbourSearch::Cells;
         let keep_pairs =
             self.kicks_uniform && self.keeps_pairs() && self.config.model == ContactModel::Hard;
         let swept = cells && !keep_pairs;
+        let list_swept = !cells && !self.kicks_uniform;
         let mut sweep = std::mem::take(&mut self.pair_sweep);
+        let mut list_sweep = std::mem::take(&mut self.list_sweep);
         if swept {
             self.sweep_pairs(&mut sweep);
+        }
+        if list_swept {
+            self.sweep_list_pairs(&mut list_sweep);
         }
         self.queue.clear();
         // In chunks of slots: a buffer for every particle would add 40
@@ -376,6 +381,9 @@ impl<Q: EventQueue> Engine<Q> {
                             engine.prediction_after_uniform_kick(i)
                         } else if swept {
                             engine.prediction_with_pair(i, sweep.found(i))
+                        } else if list_swept {
+                            let s = list_sweep.slot(i);
+                            engine.choose(s.boundary_delay, s.boundary, &s.pair)
                         } else {
                             engine.prediction(i)
                         }
@@ -389,6 +397,7 @@ impl<Q: EventQueue> Engine<Q> {
             }
         }
         self.pair_sweep = sweep;
+        self.list_sweep = list_sweep;
         self.needs_prediction = false;
         self.kicks_uniform = true;
     }
@@ -621,7 +630,7 @@ impl<Q: EventQueue> Engine<Q> {
     /// Particle i's earliest event that is not a pair collision: leaving
     /// its shell or cell, a wall, the outlet. Returns (delay (s), event).
     #[inline]
-    fn boundary_event(&self, i: usize, ki: &Kinematics) -> (f64, Scheduled) {
+    pub(super) fn boundary_event(&self, i: usize, ki: &Kinematics) -> (f64, Scheduled) {
         let (mut best, mut event) = match self.config.neighbours {
             NeighbourSearch::Lists => (
                 geometry::shell_exit_time(ki.pos - self.shell_centres[i], ki.vel, self.config.skin),
@@ -669,7 +678,7 @@ impl<Q: EventQueue> Engine<Q> {
     /// The earlier of the pair `search` found and the boundary `event` at
     /// delay `best` (s).
     #[inline]
-    fn choose(&self, best: f64, event: Scheduled, found: &PairFound) -> Prediction {
+    pub(super) fn choose(&self, best: f64, event: Scheduled, found: &PairFound) -> Prediction {
         let candidate = found.candidate(self.now, &self.event_state);
         match found.best_entry {
             Some(entry) if found.best < best => Prediction {
@@ -895,11 +904,13 @@ mod tests {
 
     use super::super::pair_sweep::PairSweep;
     use super::super::partner_lanes;
+    use super::super::store::EventKind;
     use super::super::{Engine, EngineConfig, NeighbourSearch};
     use super::PairSearch;
     use crate::collision::ContactParams;
-    use crate::domain::{AxisBoundary, Domain};
+    use crate::domain::{AxisBoundary, Domain, IDENTITY_IMAGE};
     use crate::materials::MaterialTable;
+    use crate::neighbours;
     use crate::particles::NewParticle;
     use crate::prefetch::Gather;
     use crate::queue::CalendarQueue;
@@ -1007,6 +1018,91 @@ mod tests {
                 skin < 0.5 || longest > 3 * partner_lanes::CHUNK,
                 "{longest}"
             );
+        }
+    }
+
+    /// The list sweep gives every particle the prediction its own search
+    /// gives, bit for bit (delay, event, kept pair), over several tasks
+    /// (pairs handed between them), with periodic faces, walls and a
+    /// planar run; with soft particles of a hybrid (soft pairs skipped);
+    /// and with pairs that touched at this very instant (not collided
+    /// again at delay 0).
+    #[test]
+    fn the_list_sweep_gives_each_particle_its_own_prediction() {
+        use super::super::list_sweep::ListSweep;
+        use AxisBoundary::{Frozen, Periodic, Walls};
+        let systems = [
+            ([Periodic; 3], [12, 10, 9]),
+            ([Walls; 3], [11, 9, 10]),
+            ([Walls, Periodic, Walls], [10, 12, 8]),
+            ([Walls, Walls, Frozen], [40, 50, 0]),
+        ];
+        for (k, &(axes, counts)) in systems.iter().enumerate() {
+            let config = EngineConfig {
+                neighbours: NeighbourSearch::Lists,
+                skin: 0.2,
+                ..Default::default()
+            };
+            let mut engine = lattice_engine_with(axes, counts, 11 + k as u64, config);
+            if k == 1 {
+                for i in (0..engine.slots()).step_by(3) {
+                    engine.is_soft[i] = true;
+                }
+            }
+            // Pairs that collided now: the partner moved to overlap i
+            // slightly and approach it (delay 0 both ways).
+            let mut touching = 0;
+            for i in (0..engine.slots()).step_by(17) {
+                let Some(&entry) = engine.lists.list(i).first() else {
+                    continue;
+                };
+                let (j, code) = neighbours::unpack(entry);
+                let j = j as usize;
+                let now = engine.now;
+                let used = |a: usize| engine.event_state[a].last_collision == now;
+                if j == i || code != IDENTITY_IMAGE || used(i) || used(j) {
+                    continue;
+                }
+                let ki = engine.kin_now(i);
+                let d = DVec3::new(0.6, 0.0, 0.8);
+                let d = if axes[2] == Frozen { DVec3::X } else { d };
+                engine.kin[j].pos = ki.pos + d * 0.999;
+                engine.kin[j].time = engine.now;
+                engine.kin[j].vel = ki.vel - d;
+                for (a, b) in [(i, j), (j, i)] {
+                    engine.event_state[a].last_collision = engine.now;
+                    engine.event_state[a].last_partner = b as u32;
+                }
+                touching += 1;
+            }
+            assert!(touching > 10, "{axes:?}: {touching} touching pairs");
+            let mut sweep = ListSweep::default();
+            engine.sweep_list_pairs(&mut sweep);
+            assert!(sweep.handed_pairs() > 0, "{axes:?}: no pair handed on");
+            let mut paired = 0;
+            for i in 0..engine.slots() {
+                let own = engine.prediction(i);
+                let s = sweep.slot(i);
+                let swept = engine.choose(s.boundary_delay, s.boundary, &s.pair);
+                assert_eq!(
+                    own.delay.to_bits(),
+                    swept.delay.to_bits(),
+                    "{axes:?}: slot {i}"
+                );
+                assert_eq!(own.event, swept.event, "{axes:?}: slot {i}");
+                assert_eq!(
+                    own.candidate.entry, swept.candidate.entry,
+                    "{axes:?}: slot {i}"
+                );
+                assert_eq!(
+                    own.candidate.time.to_bits(),
+                    swept.candidate.time.to_bits(),
+                    "{axes:?}: slot {i}"
+                );
+                paired += usize::from(own.event.kind == EventKind::Pair);
+            }
+            // Most particles' next event is a pair.
+            assert!(paired > engine.slots() / 2, "{axes:?}: {paired} paired");
         }
     }
 

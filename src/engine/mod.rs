@@ -20,6 +20,7 @@ mod contacts;
 mod dynamics;
 mod event_loop;
 mod hybrid;
+mod list_sweep;
 mod neighbour_search;
 mod pair_sweep;
 mod partner_lanes;
@@ -331,6 +332,8 @@ pub struct Engine<Q: EventQueue> {
     kicks_uniform: bool,
     /// Cells mode: the buffers of the pair sweep of [`Engine::predict_all`].
     pair_sweep: pair_sweep::PairSweep,
+    /// Lists mode: the buffers of the pair sweep of [`Engine::predict_all`].
+    list_sweep: list_sweep::ListSweep,
     /// Particles that left through a reinserting outlet but found no room yet.
     pending_reinsert: Vec<NewParticle>,
 
@@ -498,6 +501,7 @@ impl<Q: EventQueue> Engine<Q> {
             kicks_uniform: true,
             prediction_wall_seconds: 0.0,
             pair_sweep: Default::default(),
+            list_sweep: Default::default(),
             pending_reinsert: Vec::new(),
             counters: Counters::default(),
             records: Vec::new(),
@@ -894,6 +898,7 @@ impl<Q: EventQueue> Engine<Q> {
             ("cell_state", bytes(&self.cell_state)),
             ("list_pairs", bytes(&self.list_pairs)),
             ("pair_sweep", self.pair_sweep.heap_bytes()),
+            ("list_sweep", self.list_sweep.heap_bytes()),
             ("is_soft", bytes(&self.is_soft)),
             ("free_slots", bytes(&self.free_slots)),
             ("neighbour_lists", self.lists.heap_bytes()),

@@ -31,7 +31,7 @@ use rayon::prelude::*;
 
 use super::Engine;
 use super::event_loop::PairFound;
-use crate::domain::IDENTITY_IMAGE;
+use crate::domain::{IDENTITY_IMAGE, mirror_code};
 use crate::geometry;
 use crate::neighbours;
 use crate::queue::EventQueue;
@@ -41,10 +41,6 @@ const PARTICLES_PER_TASK: usize = 1024;
 
 /// Most slabs a sweep cuts the layers into (tasks for rayon).
 const SWEEP_SLABS: usize = 16;
-
-/// The image code of the opposite shift: each of the three base-3 digits
-/// `k` (0, 1, 2 for −L, 0, +L) becomes `2 − k`.
-const MIRROR_IMAGE: u32 = 26;
 
 /// A particle as a sweep reads it: its kinematics now, its cell and slot.
 #[derive(Clone, Copy, Debug)]
@@ -282,7 +278,7 @@ impl<Q: EventQueue> Engine<Q> {
         if t < other.best && !(touched && pa.slot == self.just_hit(pb.slot as usize)) {
             *other = PairFound {
                 best: t,
-                best_entry: Some(neighbours::pack(pa.slot, MIRROR_IMAGE - code)),
+                best_entry: Some(neighbours::pack(pa.slot, mirror_code(code))),
             };
         }
     }
