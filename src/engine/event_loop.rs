@@ -1023,10 +1023,12 @@ mod tests {
 
     /// The list sweep gives every particle the prediction its own search
     /// gives, bit for bit (delay, event, kept pair), over several tasks
-    /// (pairs handed between them), with periodic faces, walls and a
-    /// planar run; with soft particles of a hybrid (soft pairs skipped);
-    /// and with pairs that touched at this very instant (not collided
-    /// again at delay 0).
+    /// (pairs handed between them), after a flight (particles moved to the
+    /// clock from different times), with periodic faces, walls and a
+    /// planar run; with soft particles of a hybrid (soft pairs skipped),
+    /// a prediction horizon, freed slots, and pairs that touched at this
+    /// very instant (not collided again at delay 0, from either side).
+    /// `predict_all` takes the sweep after per-particle kicks.
     #[test]
     fn the_list_sweep_gives_each_particle_its_own_prediction() {
         use super::super::list_sweep::ListSweep;
@@ -1044,33 +1046,45 @@ mod tests {
                 ..Default::default()
             };
             let mut engine = lattice_engine_with(axes, counts, 11 + k as u64, config);
-            if k == 1 {
-                for i in (0..engine.slots()).step_by(3) {
-                    engine.is_soft[i] = true;
-                }
+            engine.advance(0.3);
+            match k {
+                1 => (0..engine.slots())
+                    .step_by(3)
+                    .for_each(|i| engine.is_soft[i] = true),
+                // 0.05 s: about a third of the pairs' delays lie beyond.
+                2 => engine.set_prediction_horizon(0.05),
+                3 => (0..engine.slots()).step_by(7).for_each(|i| {
+                    engine.remove(i);
+                }),
+                _ => {}
             }
             // Pairs that collided now: the partner moved to overlap i
-            // slightly and approach it (delay 0 both ways).
+            // slightly and approach it (delay 0 both ways), its shell
+            // centred where it now is (else its bound would be 0).
             let mut touching = 0;
+            let now = engine.now;
             for i in (0..engine.slots()).step_by(17) {
                 let Some(&entry) = engine.lists.list(i).first() else {
                     continue;
                 };
                 let (j, code) = neighbours::unpack(entry);
                 let j = j as usize;
-                let now = engine.now;
                 let used = |a: usize| engine.event_state[a].last_collision == now;
-                if j == i || code != IDENTITY_IMAGE || used(i) || used(j) {
+                if code != IDENTITY_IMAGE || used(i) || used(j) {
                     continue;
                 }
                 let ki = engine.kin_now(i);
-                let d = DVec3::new(0.6, 0.0, 0.8);
-                let d = if axes[2] == Frozen { DVec3::X } else { d };
+                let d = if axes[2] == Frozen {
+                    DVec3::X
+                } else {
+                    DVec3::new(0.6, 0.0, 0.8)
+                };
                 engine.kin[j].pos = ki.pos + d * 0.999;
-                engine.kin[j].time = engine.now;
+                engine.kin[j].time = now;
                 engine.kin[j].vel = ki.vel - d;
+                engine.shell_centres[j] = engine.kin[j].pos;
                 for (a, b) in [(i, j), (j, i)] {
-                    engine.event_state[a].last_collision = engine.now;
+                    engine.event_state[a].last_collision = now;
                     engine.event_state[a].last_partner = b as u32;
                 }
                 touching += 1;
@@ -1079,8 +1093,8 @@ mod tests {
             let mut sweep = ListSweep::default();
             engine.sweep_list_pairs(&mut sweep);
             assert!(sweep.handed_pairs() > 0, "{axes:?}: no pair handed on");
-            let mut paired = 0;
-            for i in 0..engine.slots() {
+            let (mut paired, mut beyond) = (0, 0);
+            for i in (0..engine.slots()).filter(|&i| engine.active[i]) {
                 let own = engine.prediction(i);
                 let s = sweep.slot(i);
                 let swept = engine.choose(s.boundary_delay, s.boundary, &s.pair);
@@ -1100,9 +1114,22 @@ mod tests {
                     "{axes:?}: slot {i}"
                 );
                 paired += usize::from(own.event.kind == EventKind::Pair);
+                beyond += usize::from(own.delay >= engine.prediction_reach());
             }
-            // Most particles' next event is a pair.
-            assert!(paired > engine.slots() / 2, "{axes:?}: {paired} paired");
+            let active = engine.active.iter().filter(|&&a| a).count();
+            // Most particles' next event is a pair, unless the horizon
+            // comes first for many.
+            if k == 2 {
+                assert!(
+                    beyond > active / 10,
+                    "{axes:?}: {beyond} beyond the horizon"
+                );
+            } else {
+                assert!(paired > active / 2, "{axes:?}: {paired} paired");
+            }
+            engine.kick_slots(&vec![DVec3::new(0.01, 0.0, 0.0); engine.slots()]);
+            engine.ensure_predicted();
+            assert!(engine.list_sweep.heap_bytes() > 0, "{axes:?}: not swept");
         }
     }
 

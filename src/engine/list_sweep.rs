@@ -8,11 +8,12 @@
 //! slots are cut into tasks of fixed slot ranges that run in parallel;
 //! each task
 //! 1. finds its slots' boundary events, which bound their pair searches
-//!    as in [`Engine::prediction`], and gathers the pairs of its slots with
-//!    partners of higher slots (and their own periodic images);
-//! 2. computes those pairs' delays, four pairs at a time whatever their
-//!    slots ([`partner_lanes::pair_delays`]): a list holds 5–20 partners,
-//!    and a per-slot batch of 2–10 would leave lanes empty;
+//!    as in [`Engine::prediction`], and gathers, in batches, the pairs of
+//!    its slots with partners of higher slots (a list never holds its own
+//!    slot: `ShellLinker` skips it, and periodic lengths exceed the reach);
+//! 2. computes a batch's delays four pairs at a time whatever their slots
+//!    ([`partner_lanes::pair_delays`]): a list holds 5–20 partners, and a
+//!    per-slot batch of 2–10 would leave lanes empty;
 //! 3. lowers the earliest pair of both slots of each pair where both are
 //!    its own, and hands on the pairs whose higher slot is another task's.
 //!
@@ -26,7 +27,11 @@
 //! them); across a periodic face the two sides round the shifted position
 //! differently, so such a pair is tested from j's side again. Only an
 //! exact tie between two partners may go to another one than the
-//! per-particle search takes (the first in list order).
+//! per-particle search takes (the first in list order): the slot takes
+//! its pairs in the order lower slots of its task, its own, then those
+//! handed on. Apart from pairs overlapping by round-off, which all have
+//! delay 0, ties between doubles computed from different partners are
+//! rare: the output digest of every shipped scenario is unchanged.
 
 use rayon::prelude::*;
 
@@ -43,6 +48,10 @@ use crate::queue::EventQueue;
 /// the order of the handed pairs never depends on the threads.
 const SLOTS_PER_TASK: usize = 512;
 
+/// Pairs a task gathers before it tests them (the buffers stay small
+/// whatever the lists' lengths; a whole slot's pairs go in one batch).
+const PAIRS_PER_BATCH: usize = 256;
+
 /// A pair found from the lower slot, for the higher one.
 #[derive(Clone, Copy, Debug)]
 struct Handed {
@@ -54,18 +63,22 @@ struct Handed {
     delay: f64,
 }
 
-/// A slot's boundary event (delay from now, s) and its earliest pair.
+/// A slot's boundary event and its earliest pair.
 #[derive(Clone, Copy, Debug)]
 pub(super) struct SweptSlot {
+    /// Delay of the boundary event from now (s).
     pub(super) boundary_delay: f64,
+    /// The boundary event: a shell exit, wall or outlet.
     pub(super) boundary: Scheduled,
+    /// The earliest pair before the boundary event and the reach.
     pub(super) pair: PairFound,
 }
 
 /// One task's buffers, kept between sweeps.
 #[derive(Debug, Default)]
 struct TaskBuffers {
-    /// The pairs tested: (lower slot, its list's entry of the partner).
+    /// A batch of pairs to test: (lower slot, its list's entry of the
+    /// partner), fewer than [`PAIRS_PER_BATCH`] plus one slot's list.
     pairs: Vec<(u32, u32)>,
     /// Their delays (s).
     delays: Vec<f64>,
@@ -73,8 +86,10 @@ struct TaskBuffers {
     handed: Vec<Handed>,
 }
 
-/// The buffers of a list sweep, kept between flow steps (40 bytes a slot
-/// and 24 a pair tested). Empty in runs without per-particle kicks.
+/// The buffers of a list sweep, kept between flow steps: 40 bytes a slot,
+/// 16 a pair handed on (approaching pairs whose slots lie in different
+/// tasks: at most half the listed pairs), and a batch of pairs a task.
+/// Empty in runs without per-particle kicks.
 #[derive(Debug, Default)]
 pub(super) struct ListSweep {
     /// Per slot (inactive slots hold whatever was there before).
@@ -159,54 +174,63 @@ impl<Q: EventQueue> Engine<Q> {
     /// One task of [`Engine::sweep_list_pairs`]: the slots from `base` on,
     /// whose results `own` holds.
     fn sweep_task(&self, base: usize, own: &mut [SweptSlot], buffers: &mut TaskBuffers) {
+        buffers.handed.clear();
+        let reach = self.prediction_reach();
+        // Every slot's bound first: a lower slot's pair may lower it.
+        for (k, swept) in own.iter_mut().enumerate() {
+            let i = base + k;
+            if self.active[i] {
+                let ki = self.kin_now(i);
+                let (boundary_delay, boundary) = self.boundary_event(i, &ki);
+                *swept = SweptSlot {
+                    boundary_delay,
+                    boundary,
+                    pair: PairFound {
+                        best: boundary_delay.min(reach),
+                        best_entry: None,
+                    },
+                };
+            }
+        }
+        buffers.pairs.clear();
+        for i in (base..base + own.len()).filter(|&i| self.active[i]) {
+            let soft_i = self.is_soft[i];
+            for &entry in self.lists.list(i) {
+                let j = neighbours::unpack(entry).0 as usize;
+                // Hybrid: soft pairs meet through contact forces.
+                if j > i && !(soft_i && self.is_soft[j]) {
+                    buffers.pairs.push((i as u32, entry));
+                }
+            }
+            if buffers.pairs.len() >= PAIRS_PER_BATCH {
+                self.take_pairs(base, own, buffers);
+            }
+        }
+        self.take_pairs(base, own, buffers);
+    }
+
+    /// Tests the pairs gathered in `buffers` and empties it: each lowers
+    /// the earliest pair of both its slots where they are this task's
+    /// (from `base` on, in `own`), and is handed on where the higher is not.
+    fn take_pairs(&self, base: usize, own: &mut [SweptSlot], buffers: &mut TaskBuffers) {
         let TaskBuffers {
             pairs,
             delays,
             handed,
         } = buffers;
-        pairs.clear();
-        handed.clear();
-        let reach = self.prediction_reach();
-        for (k, swept) in own.iter_mut().enumerate() {
-            let i = base + k;
-            if !self.active[i] {
-                continue;
-            }
-            let ki = self.kin_now(i);
-            let (boundary_delay, boundary) = self.boundary_event(i, &ki);
-            *swept = SweptSlot {
-                boundary_delay,
-                boundary,
-                pair: PairFound {
-                    best: boundary_delay.min(reach),
-                    best_entry: None,
-                },
-            };
-            let soft_i = self.is_soft[i];
-            for &entry in self.lists.list(i) {
-                let j = neighbours::unpack(entry).0 as usize;
-                // Hybrid: soft pairs meet through contact forces.
-                if j >= i && !(soft_i && self.is_soft[j]) {
-                    pairs.push((i as u32, entry));
-                }
-            }
-        }
         delays.resize(pairs.len(), 0.0);
         let partners = Partners {
             kin: &self.kin,
             shift_lanes: &self.image_shift_lanes,
         };
         partner_lanes::pair_delays(self.now, pairs, &partners, delays);
+        let reach = self.prediction_reach();
         let end = base + own.len();
         for (&(i, entry), &t) in pairs.iter().zip(delays.iter()) {
             let i = i as usize;
             lower(&mut own[i - base].pair, t, entry, self.just_hit(i));
             let (j, code) = neighbours::unpack(entry);
             let j = j as usize;
-            // A slot's own image is in its list under both codes.
-            if j == i {
-                continue;
-            }
             let mirrored = neighbours::pack(i as u32, mirror_code(code));
             let delay = if code == IDENTITY_IMAGE {
                 t
@@ -230,5 +254,6 @@ impl<Q: EventQueue> Engine<Q> {
                 });
             }
         }
+        pairs.clear();
     }
 }

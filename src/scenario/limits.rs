@@ -218,6 +218,11 @@ fn memory_estimate(s: &Scenario, p: Particles) -> MemoryEstimate {
         m.gas = n * BYTES_PER_GAS_CELL
             + p.count * BYTES_PER_COUPLED_PARTICLE
             + direct_band_entries(s, g).map_or(0.0, |b| 8.0 * b);
+        if lists {
+            // The re-prediction after the kicks sweeps the lists: 40 bytes
+            // a particle and at most 16 for every other list entry.
+            m.neighbour_lists += p.count * (40.0 + 8.0 * list);
+        }
     }
     if s.output.snapshot_interval.is_some() {
         let n = match &s.gas {
