@@ -871,16 +871,25 @@ impl PairSearch<'_> {
     /// earliest yet, unless it is the partner just hit, at delay 0.
     #[inline(always)]
     fn consider(&mut self, t: f64, entry: u32) {
-        if t < self.found.best && !(t == 0.0 && neighbours::unpack(entry).0 == self.just_hit) {
-            self.found = PairFound {
+        self.found.lower(t, entry, || self.just_hit);
+    }
+}
+
+impl PairFound {
+    /// Keeps the partner `entry` at contact delay `t` (s) if it is earlier
+    /// than the best so far, unless the pair touched at this very instant:
+    /// `t` is 0 and the partner is `just_hit()`, the partner of a collision
+    /// now ([`Engine::just_hit`], asked only then).
+    #[inline(always)]
+    pub(super) fn lower(&mut self, t: f64, entry: u32, just_hit: impl FnOnce() -> u32) {
+        if t < self.best && !(t == 0.0 && neighbours::unpack(entry).0 == just_hit()) {
+            *self = PairFound {
                 best: t,
                 best_entry: Some(entry),
             };
         }
     }
-}
 
-impl PairFound {
     /// The best pair found, or the search's horizon without one, to keep
     /// for a later partial prediction.
     #[inline]
@@ -1021,6 +1030,19 @@ mod tests {
         }
     }
 
+    /// The systems the sweep tests compare with per-particle searches
+    /// (boundaries, lattice sites per axis): periodic faces, walls, both,
+    /// and a planar run.
+    const SWEPT_SYSTEMS: [([AxisBoundary; 3], [usize; 3]); 4] = {
+        use AxisBoundary::{Frozen, Periodic, Walls};
+        [
+            ([Periodic; 3], [12, 10, 9]),
+            ([Walls; 3], [11, 9, 10]),
+            ([Walls, Periodic, Walls], [10, 12, 8]),
+            ([Walls, Walls, Frozen], [40, 50, 0]),
+        ]
+    };
+
     /// The list sweep gives every particle the prediction its own search
     /// gives, bit for bit (delay, event, kept pair), over several tasks
     /// (pairs handed between them), after a flight (particles moved to the
@@ -1032,14 +1054,8 @@ mod tests {
     #[test]
     fn the_list_sweep_gives_each_particle_its_own_prediction() {
         use super::super::list_sweep::ListSweep;
-        use AxisBoundary::{Frozen, Periodic, Walls};
-        let systems = [
-            ([Periodic; 3], [12, 10, 9]),
-            ([Walls; 3], [11, 9, 10]),
-            ([Walls, Periodic, Walls], [10, 12, 8]),
-            ([Walls, Walls, Frozen], [40, 50, 0]),
-        ];
-        for (k, &(axes, counts)) in systems.iter().enumerate() {
+        use AxisBoundary::Frozen;
+        for (k, &(axes, counts)) in SWEPT_SYSTEMS.iter().enumerate() {
             let config = EngineConfig {
                 neighbours: NeighbourSearch::Lists,
                 skin: 0.2,
@@ -1140,14 +1156,7 @@ mod tests {
     /// walls, and in a planar run.
     #[test]
     fn the_pair_sweep_finds_each_particles_own_earliest_pair() {
-        use AxisBoundary::{Frozen, Periodic, Walls};
-        let systems = [
-            ([Periodic; 3], [12, 10, 9]),
-            ([Walls; 3], [11, 9, 10]),
-            ([Walls, Periodic, Walls], [10, 12, 8]),
-            ([Walls, Walls, Frozen], [40, 50, 0]),
-        ];
-        for (k, &(axes, counts)) in systems.iter().enumerate() {
+        for (k, &(axes, counts)) in SWEPT_SYSTEMS.iter().enumerate() {
             let engine = lattice_engine(axes, counts, 7 + k as u64);
             let mut sweep = PairSweep::default();
             engine.sweep_pairs(&mut sweep);

@@ -125,19 +125,6 @@ impl ListSweep {
     }
 }
 
-/// Lowers `found` to the pair `entry` at `delay` (s) if it is earlier,
-/// unless the pair touched at this very instant (`just_hit` is the slot's
-/// partner of a collision now): as a per-particle search does.
-#[inline(always)]
-fn lower(found: &mut PairFound, delay: f64, entry: u32, just_hit: u32) {
-    if delay < found.best && !(delay == 0.0 && neighbours::unpack(entry).0 == just_hit) {
-        *found = PairFound {
-            best: delay,
-            best_entry: Some(entry),
-        };
-    }
-}
-
 impl<Q: EventQueue> Engine<Q> {
     /// Finds every active slot's boundary event and earliest listed pair
     /// into `sweep` (read with [`ListSweep::slot`]). Lists mode only.
@@ -166,7 +153,9 @@ impl<Q: EventQueue> Engine<Q> {
         for buffers in &sweep.tasks {
             for h in &buffers.handed {
                 let j = h.slot as usize;
-                lower(&mut sweep.slots[j].pair, h.delay, h.entry, self.just_hit(j));
+                sweep.slots[j]
+                    .pair
+                    .lower(h.delay, h.entry, || self.just_hit(j));
             }
         }
     }
@@ -203,16 +192,23 @@ impl<Q: EventQueue> Engine<Q> {
                 }
             }
             if buffers.pairs.len() >= PAIRS_PER_BATCH {
-                self.take_pairs(base, own, buffers);
+                self.take_pairs(base, reach, own, buffers);
             }
         }
-        self.take_pairs(base, own, buffers);
+        self.take_pairs(base, reach, own, buffers);
     }
 
     /// Tests the pairs gathered in `buffers` and empties it: each lowers
     /// the earliest pair of both its slots where they are this task's
-    /// (from `base` on, in `own`), and is handed on where the higher is not.
-    fn take_pairs(&self, base: usize, own: &mut [SweptSlot], buffers: &mut TaskBuffers) {
+    /// (from `base` on, in `own`), and is handed on where the higher is not;
+    /// delays from `reach` (s) on are dropped.
+    fn take_pairs(
+        &self,
+        base: usize,
+        reach: f64,
+        own: &mut [SweptSlot],
+        buffers: &mut TaskBuffers,
+    ) {
         let TaskBuffers {
             pairs,
             delays,
@@ -224,11 +220,10 @@ impl<Q: EventQueue> Engine<Q> {
             shift_lanes: &self.image_shift_lanes,
         };
         partner_lanes::pair_delays(self.now, pairs, &partners, delays);
-        let reach = self.prediction_reach();
         let end = base + own.len();
         for (&(i, entry), &t) in pairs.iter().zip(delays.iter()) {
             let i = i as usize;
-            lower(&mut own[i - base].pair, t, entry, self.just_hit(i));
+            own[i - base].pair.lower(t, entry, || self.just_hit(i));
             let (j, code) = neighbours::unpack(entry);
             let j = j as usize;
             let mirrored = neighbours::pack(i as u32, mirror_code(code));
@@ -245,7 +240,9 @@ impl<Q: EventQueue> Engine<Q> {
                 continue;
             }
             if j < end {
-                lower(&mut own[j - base].pair, delay, mirrored, self.just_hit(j));
+                own[j - base]
+                    .pair
+                    .lower(delay, mirrored, || self.just_hit(j));
             } else {
                 handed.push(Handed {
                     slot: j as u32,
