@@ -96,11 +96,39 @@ fn assert_wall_parts(dir: &Path) {
     assert_eq!(part("gas_coupling") > 0.0, gas);
 }
 
+/// The sides of the overlapped joins in `summary.json`: both timed inside
+/// each join, so the joins are at least as long as either side, and on one
+/// thread, which runs the sides one after the other, as long as both
+/// (to 1 µs of rounding in the sums); all zero without overlap.
+fn assert_join_sides(dir: &Path, overlapped: bool, threads: usize) {
+    let v = raw_summary(dir);
+    let part = |key: &str| v["wall_seconds_by_part"][key].as_f64().unwrap();
+    let (flight, gas, joined) = (part("flight_side"), part("gas_side"), part("joined"));
+    if !overlapped {
+        assert_eq!((flight, gas, joined), (0.0, 0.0, 0.0));
+        return;
+    }
+    assert!(flight > 0.0 && gas > 0.0, "sides {flight} and {gas}");
+    assert!(
+        joined >= flight.max(gas),
+        "joins {joined} < sides {flight}, {gas}"
+    );
+    if threads == 1 {
+        assert!(
+            joined >= flight + gas - 1e-6,
+            "one thread: joins {joined} < sides {flight} + {gas}"
+        );
+    }
+}
+
 fn assert_thread_independent(scenario: &str, t_end: &str, extra: &[&str]) {
     let one = run(scenario, t_end, 1, extra);
     let two = run(scenario, t_end, 2, extra);
     assert_wall_parts(&one);
     assert_wall_parts(&two);
+    let overlapped = extra.contains(&"time.splitting=\"overlapped\"");
+    assert_join_sides(&one, overlapped, 1);
+    assert_join_sides(&two, overlapped, 2);
     let state = |d: &Path| std::fs::read(d.join("final_state.bin")).expect("final_state.bin");
     let (a, b) = (state(&one), state(&two));
     assert!(!a.is_empty());

@@ -12,7 +12,9 @@ splitting on one thread and overlapped splitting on two, alternating,
 setting run the same trajectory and differ by timing noise only.
 
 Prints a markdown table: each run's wall seconds per simulated second, the
-medians, and their ratio (results/benchmarks.md, seventeenth session).
+medians, and their ratio (results/benchmarks.md, seventeenth session), and
+for the two-thread runs the two sides of the overlapped steps' joins (the
+flight and the gas step): the longer one bounds the speedup.
 
 The two settings follow different trajectories (a riser is chaotic), so a
 short span also compares two flows. `--same-trajectory` adds overlapped
@@ -69,6 +71,9 @@ def main():
     for override in a.set:
         step += ["--set", override]
     walls = {s: [] for s in settings}
+    # Two-thread runs: per simulated second, the joins' flight side, gas
+    # side and the joins (summary.json's wall_seconds_by_part).
+    sides = []
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         restarts = {}
@@ -85,6 +90,10 @@ def main():
                          step + ["--t-end", repr(a.start + a.span),
                                  "--restart", str(restarts[splitting])])
                 walls[(splitting, threads)].append(s["wall_seconds"] / a.span)
+                if (splitting, threads) == SETTINGS[1]:
+                    p = s["wall_seconds_by_part"]
+                    sides.append(tuple(p[k] / a.span for k in
+                                       ("flight_side", "gas_side", "joined")))
     print(f"{a.scenario}, {a.start} -> {a.start + a.span} s, "
           f"dt_flow {a.dt} s: wall seconds per simulated second\n")
     print("| splitting | threads | runs | median |")
@@ -96,6 +105,11 @@ def main():
     print(f"\ntwo threads against one: {one / two:.2f}x")
     ratios = [x / y for x, y in zip(walls[SETTINGS[0]], walls[SETTINGS[1]])]
     print("  each repeat: " + ", ".join(f"{r:.2f}x" for r in ratios))
+    flight, gas, joined = (statistics.median(x) for x in zip(*sides))
+    bound = "the flight" if flight >= gas else "the gas step"
+    print(f"two threads, wall s per simulated second in the joins (medians): "
+          f"flight side {flight:.2f}, gas side {gas:.2f}, joins {joined:.2f}: "
+          f"{bound} bounds the step")
     if a.same_trajectory:
         same = statistics.median(walls[SAME_TRAJECTORY])
         print(f"two threads against one on the same trajectory (overlapped): {same / two:.2f}x")

@@ -122,6 +122,16 @@ pub struct WallSecondsByPart {
     /// and `particle_motion`) ran at the same time. The other parts add up
     /// to `wall_seconds` plus this.
     pub overlapped: f64,
+    /// Overlapped splitting, summed over the flow steps' joins: the
+    /// flight's side (the flight and its closing; a re-prediction run
+    /// before the join is not in it).
+    pub flight_side: f64,
+    /// Overlapped splitting: the gas step's side of the joins.
+    pub gas_side: f64,
+    /// Overlapped splitting: the joins themselves, at least the longer
+    /// side of each: with two threads, the side close to `joined` bounds
+    /// the run, and the other waits.
+    pub joined: f64,
 }
 
 /// What a run reports in `summary.json`.
@@ -360,6 +370,11 @@ struct WallClock {
     advance: f64,
     /// Overlapped splitting: time the gas step and the flight ran at once.
     overlapped: f64,
+    /// Overlapped splitting: the flight's side, the gas step's side and
+    /// the joins ([`WallSecondsByPart::joined`]).
+    flight_side: f64,
+    gas_side: f64,
+    joined: f64,
 }
 
 /// `f()` and the wall-clock time it took (s).
@@ -390,6 +405,9 @@ impl<Q: EventQueue> FlowLoop<'_, Q> {
             particle_motion: self.clock.advance - re_prediction,
             other: 0.0,
             overlapped: self.clock.overlapped,
+            flight_side: self.clock.flight_side,
+            gas_side: self.clock.gas_side,
+            joined: self.clock.joined,
         };
         parts.other = wall_seconds + parts.overlapped
             - (parts.gas_coupling + parts.gas_solver + parts.re_prediction + parts.particle_motion);
@@ -490,6 +508,9 @@ impl<Q: EventQueue> FlowLoop<'_, Q> {
         clock.advance += before + flight;
         clock.gas += gas;
         clock.overlapped += (flight + closing + gas - both).max(0.0);
+        clock.flight_side += flight + closing;
+        clock.gas_side += gas;
+        clock.joined += both;
         // A stalled flight is reported first, as without overlap; then the
         // gas step's failure, then what closing the flight found.
         let Some(closed) = closed else {
