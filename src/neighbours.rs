@@ -735,8 +735,7 @@ impl CellGrid {
     /// one of them would wrap a periodic axis (the caller then scans with
     /// those two). Each run keeps its place in the array (5 in 3D, 2 in a
     /// planar run, 1 along a line): a run past a wall is empty
-    /// (`first > last`). For cells taken in flat order, the `first` of
-    /// each place's non-empty runs never decreases.
+    /// (`first > last`).
     #[inline(always)]
     pub fn forward_runs(&self, c: [usize; 3]) -> Option<([(u32, u32); 5], usize)> {
         let d = self.cells;

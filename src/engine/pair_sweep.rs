@@ -8,9 +8,10 @@
 //! its cell (`CellGrid::for_each_later_in_layer`,
 //! `CellGrid::for_each_in_next_layer`), keeping the earliest pair of
 //! both particles. Away from periodic faces those cells' particles are
-//! read from the cell-ordered copy itself, found by one cursor per run of
-//! `CellGrid::forward_runs` that only moves forward (no cell lists, no
-//! occupancy bits); at periodic faces the image-aware scans take over.
+//! read from the cell-ordered copy itself: each run of
+//! `CellGrid::forward_runs` is one range of it, looked up in a table of
+//! where every cell's particles start (no cell lists, no occupancy
+//! bits); at periodic faces the image-aware scans take over.
 //!
 //! A kick that differs between particles changes every relative velocity,
 //! and a grazing pair can turn into a collision under any change however
@@ -52,20 +53,20 @@ struct SweptParticle {
     slot: u32,
 }
 
-/// Per run of [`crate::neighbours::CellGrid::forward_runs`], the first
-/// place not yet known to lie before the run: the runs of cells taken in
-/// flat order never move back, so each cursor crosses the particles once.
-type RunCursors = [usize; 5];
-
-/// A pair sweep's buffers, kept between flow steps (96 bytes a particle).
+/// A pair sweep's buffers, kept between flow steps (96 bytes a particle
+/// and 4 a cell).
 #[derive(Debug, Default)]
 pub(super) struct PairSweep {
     /// The active particles in flat cell order ([`crate::neighbours::CellGrid::for_each_in_cell_order`]).
     particles: Vec<SweptParticle>,
     /// Per place, the particle's flat cell index
-    /// ([`crate::neighbours::CellGrid::flat`]), apart so that the cursors
-    /// read 4 bytes a particle.
+    /// ([`crate::neighbours::CellGrid::flat`]).
     flats: Vec<u32>,
+    /// Per flat cell index, the place of its first particle (of the next
+    /// occupied cell's where it has none), and the total at the end: the
+    /// particles of cells `first..=last` are the places
+    /// `cell_start[first]..cell_start[last + 1]`.
+    cell_start: Vec<u32>,
     /// Where each layer's particles start in `particles`, and the total.
     layer_start: Vec<u32>,
     /// Per slot, its place in `particles` (`u32::MAX` for a free slot).
@@ -84,7 +85,10 @@ impl PairSweep {
     /// Heap memory of the buffers (bytes, allocated capacity).
     pub(super) fn heap_bytes(&self) -> usize {
         self.particles.capacity() * std::mem::size_of::<SweptParticle>()
-            + (self.flats.capacity() + self.layer_start.capacity() + self.place.capacity())
+            + (self.flats.capacity()
+                + self.cell_start.capacity()
+                + self.layer_start.capacity()
+                + self.place.capacity())
                 * std::mem::size_of::<u32>()
             + self.found.capacity() * std::mem::size_of::<PairFound>()
     }
@@ -94,6 +98,7 @@ impl PairSweep {
 struct SweepView<'a> {
     particles: &'a [SweptParticle],
     flats: &'a [u32],
+    cell_start: &'a [u32],
     layer_start: &'a [u32],
     place: &'a [u32],
     /// Cells per layer along [`crate::neighbours::CellGrid::layer_axis`].
@@ -128,6 +133,7 @@ impl<Q: EventQueue> Engine<Q> {
         let PairSweep {
             particles,
             flats,
+            cell_start,
             layer_start,
             place,
             found,
@@ -144,6 +150,7 @@ impl<Q: EventQueue> Engine<Q> {
         let view = SweepView {
             particles,
             flats,
+            cell_start,
             layer_start,
             place,
             layer_cells,
@@ -159,35 +166,24 @@ impl<Q: EventQueue> Engine<Q> {
             rest = tail;
         }
         tasks.into_par_iter().for_each(|(layers, base, own)| {
-            let mut cursors: RunCursors = [base; 5];
             for layer in layers.clone() {
                 let scan = SweepScan::InSlab {
                     next_layer: layer + 1 < layers.end,
                 };
-                for k in view.layers(layer..layer + 1) {
-                    self.sweep_from(&view, (k, layer), scan, &mut cursors, own, base);
-                }
+                let places = view.layers(layer..layer + 1);
+                self.sweep_layer(&view, (places, layer), scan, own, base);
             }
         });
         for layers in &slabs {
             let layer = layers.end - 1;
             let places = view.layers(layer..layers.end);
-            let mut cursors: RunCursors = [places.start; 5];
-            for k in places {
-                self.sweep_from(
-                    &view,
-                    (k, layer),
-                    SweepScan::NextLayer,
-                    &mut cursors,
-                    found,
-                    0,
-                );
-            }
+            self.sweep_layer(&view, (places, layer), SweepScan::NextLayer, found, 0);
         }
     }
 
     /// Copies the active particles into `sweep.particles` in flat cell
-    /// order, with `place` and `layer_start`; returns the cells per layer.
+    /// order, with `place`, `cell_start` and `layer_start`; returns the
+    /// cells per layer.
     fn gather_in_cell_order(&self, sweep: &mut PairSweep) -> usize {
         let dims = self.cells.dims();
         let layer_axis = self.cells.layer_axis();
@@ -195,6 +191,7 @@ impl<Q: EventQueue> Engine<Q> {
         let PairSweep {
             particles,
             flats,
+            cell_start,
             layer_start,
             place,
             ..
@@ -221,6 +218,17 @@ impl<Q: EventQueue> Engine<Q> {
         while layer_start.len() <= dims[layer_axis] {
             layer_start.push(particles.len() as u32);
         }
+        let cells: usize = dims.iter().product();
+        cell_start.resize(cells + 1, 0);
+        let mut unfilled = 0;
+        for (k, &flat) in flats.iter().enumerate() {
+            let flat = flat as usize;
+            if flat >= unfilled {
+                cell_start[unfilled..=flat].fill(k as u32);
+                unfilled = flat + 1;
+            }
+        }
+        cell_start[unfilled..].fill(flats.len() as u32);
         // The copies, which read the slots out of order, in parallel.
         particles
             .par_iter_mut()
@@ -283,69 +291,101 @@ impl<Q: EventQueue> Engine<Q> {
         }
     }
 
-    /// Tests the particle at place `k` of the cell order, in `layer`, against the
-    /// neighbours `scan` names, keeping the earlier pair of each side in
-    /// `found`, which holds the places from `base` on. Away from periodic
-    /// faces the neighbour cells' particles are found in the cell order
-    /// itself, through `cursors`.
+    /// Tests the particles of one occupied cell, at the places `cell` of
+    /// the cell order, in `layer`, against the neighbours `scan` names,
+    /// keeping the earlier pair of each side in `found`, which holds the
+    /// places from `base` on. Away from periodic faces the neighbour cells'
+    /// particles are ranges of the cell order itself, from `cell_start`,
+    /// found once for the whole cell.
     #[inline]
-    fn sweep_from(
+    fn sweep_cell(
         &self,
         view: &SweepView,
-        (k, layer): (usize, usize),
+        (cell, layer): (Range<usize>, usize),
         scan: SweepScan,
-        cursors: &mut RunCursors,
         found: &mut [PairFound],
         base: usize,
     ) {
-        let pa = view.particles[k];
-        let mut test = |place_b: usize, code: u32| {
-            self.test_pair(view, (k, &pa), (place_b, code), found, base)
-        };
-        let c = pa.cell.map(|v| v as usize);
+        let c = view.particles[cell.start].cell.map(|v| v as usize);
         let (next_layer, in_layer) = match scan {
             SweepScan::InSlab { next_layer } => (next_layer, true),
             SweepScan::NextLayer => (true, false),
         };
-        let flats = view.flats;
-        if in_layer {
-            let own_cell = flats[k];
-            let same = flats[k + 1..]
-                .iter()
-                .take_while(|&&f| f == own_cell)
-                .count();
-            for q in k + 1..k + 1 + same {
-                test(q, IDENTITY_IMAGE);
-            }
-        }
-        if let Some((runs, count)) = self.cells.forward_runs(c) {
-            let next_layer_start = ((layer + 1) * view.layer_cells) as u32;
-            for (&(first, last), at) in runs[..count].iter().zip(cursors.iter_mut()) {
-                let next = first >= next_layer_start;
-                if first > last || !((next && next_layer) || (!next && in_layer)) {
-                    continue;
+        let Some((runs, count)) = self.cells.forward_runs(c) else {
+            // A cell at a periodic face: the scans that know the images.
+            // Cells mode keeps at least 3 cells on periodic axes: every
+            // image code is known from the cell index.
+            for k in cell.clone() {
+                let pa = view.particles[k];
+                let mut test = |place_b: usize, code: u32| {
+                    self.test_pair(view, (k, &pa), (place_b, code), found, base)
+                };
+                if in_layer {
+                    for q in k + 1..cell.end {
+                        test(q, IDENTITY_IMAGE);
+                    }
                 }
-                // The run's cells follow particle k's: its particles too.
-                *at = (*at).max(k + 1);
-                *at += flats[*at..].iter().take_while(|&&f| f < first).count();
-                let run = flats[*at..].iter().take_while(|&&f| f <= last).count();
-                for q in *at..*at + run {
-                    test(q, IDENTITY_IMAGE);
+                let place = |slot: u32| view.place[slot as usize] as usize;
+                let mut by_slot =
+                    |b: u32, image: Option<u32>| test(place(b), image.unwrap_or(IDENTITY_IMAGE));
+                if in_layer {
+                    self.cells.for_each_later_in_layer(c, &mut by_slot);
+                }
+                if next_layer {
+                    self.cells.for_each_in_next_layer(c, &mut by_slot);
                 }
             }
             return;
+        };
+        // The runs' cells follow this cell: their particles too.
+        let next_layer_start = ((layer + 1) * view.layer_cells) as u32;
+        let mut ranges = [(0usize, 0usize); 5];
+        let mut kept = 0;
+        for &(first, last) in &runs[..count] {
+            let next = first >= next_layer_start;
+            if first <= last && ((next && next_layer) || (!next && in_layer)) {
+                let starts = view.cell_start;
+                ranges[kept] = (
+                    starts[first as usize] as usize,
+                    starts[last as usize + 1] as usize,
+                );
+                kept += 1;
+            }
         }
-        // A cell at a periodic face: the scans that know the images.
-        // Cells mode keeps at least 3 cells on periodic axes: every image
-        // code is known from the cell index.
-        let place = |slot: u32| view.place[slot as usize] as usize;
-        let mut by_slot =
-            |b: u32, image: Option<u32>| test(place(b), image.unwrap_or(IDENTITY_IMAGE));
-        if in_layer {
-            self.cells.for_each_later_in_layer(c, &mut by_slot);
+        for k in cell.clone() {
+            let pa = view.particles[k];
+            let mut test = |place_b: usize, code: u32| {
+                self.test_pair(view, (k, &pa), (place_b, code), found, base)
+            };
+            if in_layer {
+                for q in k + 1..cell.end {
+                    test(q, IDENTITY_IMAGE);
+                }
+            }
+            for &(from, to) in &ranges[..kept] {
+                for q in from..to {
+                    test(q, IDENTITY_IMAGE);
+                }
+            }
         }
-        if next_layer {
-            self.cells.for_each_in_next_layer(c, &mut by_slot);
+    }
+
+    /// Sweeps the occupied cells of the places `places`, all in `layer`
+    /// ([`Engine::sweep_cell`]).
+    #[inline]
+    fn sweep_layer(
+        &self,
+        view: &SweepView,
+        (places, layer): (Range<usize>, usize),
+        scan: SweepScan,
+        found: &mut [PairFound],
+        base: usize,
+    ) {
+        let mut k = places.start;
+        while k < places.end {
+            let end = view.cell_start[view.flats[k] as usize + 1] as usize;
+            self.sweep_cell(view, (k..end, layer), scan, found, base);
+            k = end;
         }
     }
 }

@@ -222,6 +222,11 @@ fn memory_estimate(s: &Scenario, p: Particles) -> MemoryEstimate {
             // The re-prediction after the kicks sweeps the lists: 40 bytes
             // a particle and at most 16 for every other list entry.
             m.neighbour_lists += p.count * (40.0 + 8.0 * list);
+        } else {
+            // The re-prediction's pair sweep: where each cell's particles
+            // start, 4 bytes a cell.
+            let cells = dims.iter().map(|&k| k as f64).product::<f64>();
+            m.neighbour_cells += 4.0 * (cells + 1.0);
         }
     }
     if s.output.snapshot_interval.is_some() {
