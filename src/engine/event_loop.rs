@@ -1153,11 +1153,15 @@ mod tests {
     /// (partner, image and time; times to round-off across periodic faces,
     /// where the two sides shift different positions), and so the same
     /// event, in 3D with periodic faces (the image-aware scans), with
-    /// walls, and in a planar run.
+    /// walls, and in a planar run; with square cells (at most one particle
+    /// a cell on these lattices) and with cells stretched along x (several
+    /// a cell, so that pairs within a cell are swept too).
     #[test]
     fn the_pair_sweep_finds_each_particles_own_earliest_pair() {
-        for (k, &(axes, counts)) in SWEPT_SYSTEMS.iter().enumerate() {
-            let engine = lattice_engine(axes, counts, 7 + k as u64);
+        let systems = SWEPT_SYSTEMS.iter().enumerate();
+        for ((k, &(axes, counts)), tall) in systems.flat_map(|s| [(s, None), (s, Some(0u8))]) {
+            let mut engine = lattice_engine(axes, counts, 7 + k as u64);
+            engine.set_tall_cell_axis(tall).unwrap();
             let mut sweep = PairSweep::default();
             engine.sweep_pairs(&mut sweep);
             let mut paired = 0;
