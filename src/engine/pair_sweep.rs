@@ -198,13 +198,9 @@ impl<Q: EventQueue> Engine<Q> {
         } = sweep;
         particles.clear();
         flats.clear();
-        layer_start.clear();
         place.clear();
         place.resize(self.kin.len(), u32::MAX);
         self.cells.for_each_in_cell_order(|cell, slot| {
-            while layer_start.len() <= cell / layer_cells {
-                layer_start.push(particles.len() as u32);
-            }
             place[slot as usize] = particles.len() as u32;
             flats.push(cell as u32);
             particles.push(SweptParticle {
@@ -215,9 +211,6 @@ impl<Q: EventQueue> Engine<Q> {
                 slot,
             });
         });
-        while layer_start.len() <= dims[layer_axis] {
-            layer_start.push(particles.len() as u32);
-        }
         let cells: usize = dims.iter().product();
         cell_start.resize(cells + 1, 0);
         let mut unfilled = 0;
@@ -229,6 +222,10 @@ impl<Q: EventQueue> Engine<Q> {
             }
         }
         cell_start[unfilled..].fill(flats.len() as u32);
+        // A layer is a run of whole cells: the axes after the layer axis
+        // have one cell each.
+        layer_start.clear();
+        layer_start.extend((0..=dims[layer_axis]).map(|l| cell_start[l * layer_cells]));
         // The copies, which read the slots out of order, in parallel.
         particles
             .par_iter_mut()
@@ -311,6 +308,9 @@ impl<Q: EventQueue> Engine<Q> {
             SweepScan::InSlab { next_layer } => (next_layer, true),
             SweepScan::NextLayer => (true, false),
         };
+        // Two loops over the cell's particles, one per branch: one loop
+        // with the branch inside took 7 % more instructions in the riser's
+        // re-prediction.
         let Some((runs, count)) = self.cells.forward_runs(c) else {
             // A cell at a periodic face: the scans that know the images.
             // Cells mode keeps at least 3 cells on periodic axes: every
