@@ -63,7 +63,8 @@ pub fn pair_test_lanes() -> usize {
 /// Sets `times[k]` (s) to the contact delay of the particle with kinematics
 /// `ki` at time `now` (s) and the partner `entries[k]`, for every entry
 /// (at most [`CHUNK`]): what [`geometry::pair_contact_time_eager`] gives
-/// for [`relative`]'s pair.
+/// for [`relative`]'s pair. Up to three slots past the entries may be
+/// overwritten.
 #[inline(always)]
 pub(super) fn contact_delays(
     ki: &Kinematics,
@@ -98,7 +99,8 @@ fn contact_delays_one_by_one(
 }
 
 /// [`contact_delays`] four partners at a time. A short last group repeats
-/// its last partner in the spare lanes.
+/// its last partner in the spare lanes, whose delays land in `times` past
+/// the entries.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 fn contact_delays_avx2(
@@ -108,17 +110,21 @@ fn contact_delays_avx2(
     partners: &Partners,
     times: &mut [f64; CHUNK],
 ) {
+    const { assert!(CHUNK % 4 == 0) };
     let centre = Centre::new(ki, now);
     let (groups, rest) = entries.as_chunks::<4>();
-    for (group, out) in groups.iter().zip(times.as_chunks_mut::<4>().0) {
+    let outs = times.as_chunks_mut::<4>().0;
+    for (group, out) in groups.iter().zip(outs.iter_mut()) {
         centre.group_delays(*group, partners, out);
     }
-    if let Some(&last) = rest.last() {
-        let mut group = [last; 4];
-        group[..rest.len()].copy_from_slice(rest);
-        let mut out = [0.0; 4];
-        centre.group_delays(group, partners, &mut out);
-        times[entries.len() - rest.len()..entries.len()].copy_from_slice(&out[..rest.len()]);
+    if !rest.is_empty() {
+        // Fixed-size copies: a slice copy of 1-3 elements was a `memcpy`
+        // call per prediction. The short group's four lanes fit in
+        // `times` (CHUNK is a multiple of 4), the spare ones past the
+        // entries.
+        let last = rest.len() - 1;
+        let group = std::array::from_fn(|k| rest[k.min(last)]);
+        centre.group_delays(group, partners, &mut outs[groups.len()]);
     }
 }
 
@@ -352,8 +358,7 @@ mod tests {
                 let (mut fast, mut slow) = ([-1.0; CHUNK], [-1.0; CHUNK]);
                 contact_delays(&ki, 0.75, chunk, &partners, &mut fast);
                 contact_delays_one_by_one(&ki, 0.75, chunk, &partners, &mut slow);
-                // Every slot: those past `len` must stay untouched too.
-                for k in 0..CHUNK {
+                for k in 0..len {
                     assert_eq!(
                         fast[k].to_bits(),
                         slow[k].to_bits(),
