@@ -233,7 +233,7 @@ fn pair_delays_avx2(now: f64, pairs: &[(u32, u32)], partners: &Partners, times: 
         }
         (transpose(rows[0]), transpose(rows[1]))
     };
-    let group = |four: [(u32, u32); 4], out: &mut [f64]| {
+    let group = |four: [(u32, u32); 4]| {
         let (c_pos_time, c_vel_radius) = rows(four.map(|(i, _)| i));
         let (p_pos_time, p_vel_radius) = rows(four.map(|(_, e)| neighbours::unpack(e).0));
         let mut shift = [_mm256_setzero_pd(); 4];
@@ -257,21 +257,23 @@ fn pair_delays_avx2(now: f64, pairs: &[(u32, u32)], partners: &Partners, times: 
         let v: [__m256d; 3] =
             std::array::from_fn(|a| _mm256_sub_pd(c_vel_radius[a], p_vel_radius[a]));
         let sigma = _mm256_add_pd(c_vel_radius[3], p_vel_radius[3]);
-        let t = geometry::pair_contact_times_x4(r, v, sigma);
-        let mut lanes = [0.0; 4];
-        // SAFETY: `lanes` holds exactly four f64.
-        unsafe { _mm256_storeu_pd(lanes.as_mut_ptr(), t) };
-        out.copy_from_slice(&lanes[..out.len()]);
+        geometry::pair_contact_times_x4(r, v, sigma)
     };
     let (groups, rest) = pairs.as_chunks::<4>();
-    for (four, out) in groups.iter().zip(times.chunks_exact_mut(4)) {
-        group(*four, out);
+    // Stored straight into `times` (a copy through a slice of unknown
+    // length was a `memcpy` call per group).
+    for (four, out) in groups.iter().zip(times.as_chunks_mut::<4>().0) {
+        // SAFETY: `out` holds exactly four f64.
+        unsafe { _mm256_storeu_pd(out.as_mut_ptr(), group(*four)) };
     }
     if let Some(&last) = rest.last() {
         let mut four = [last; 4];
         four[..rest.len()].copy_from_slice(rest);
+        let mut lanes = [0.0; 4];
+        // SAFETY: `lanes` holds exactly four f64.
+        unsafe { _mm256_storeu_pd(lanes.as_mut_ptr(), group(four)) };
         let start = pairs.len() - rest.len();
-        group(four, &mut times[start..pairs.len()]);
+        times[start..pairs.len()].copy_from_slice(&lanes[..rest.len()]);
     }
 }
 
