@@ -212,3 +212,158 @@ impl<Q: EventQueue> Engine<Q> {
         true
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use rand::{RngExt, SeedableRng};
+    use rand_xoshiro::Xoshiro256PlusPlus;
+
+    use super::*;
+    use crate::collision::ContactParams;
+    use crate::domain::{Domain, Outlet};
+    use crate::engine::EngineConfig;
+    use crate::materials::MaterialTable;
+    use crate::queue::IndexedHeap;
+
+    /// The rule of [`Engine::find_bad_particle`]'s doc, one particle and
+    /// axis at a time: its reference. Returns (id, axis).
+    fn reference(e: &Engine<IndexedHeap>) -> Option<(u64, Option<usize>)> {
+        for i in 0..e.kin.len() {
+            if !e.active[i] {
+                continue;
+            }
+            let k = &e.kin[i];
+            let pos = k.position_at(e.now);
+            if !(pos.is_finite() && k.vel.is_finite() && e.spins.get(i).is_finite()) {
+                return Some((e.id[i], None));
+            }
+            let soft = match e.config.model {
+                ContactModel::Hard => false,
+                ContactModel::Soft => true,
+                ContactModel::Hybrid => e.is_soft[i],
+            };
+            let tol = if soft { k.radius } else { 1e-6 * k.radius };
+            for axis in 0..3 {
+                let (lo, hi, x) = (e.domain.lo[axis], e.domain.hi[axis], pos[axis]);
+                let inside = match e.domain.axes[axis] {
+                    AxisBoundary::Walls => {
+                        let upper = if e.domain.has_wall((2 * axis + 1) as Face) {
+                            hi - k.radius + tol
+                        } else {
+                            hi + tol
+                        };
+                        x >= lo + k.radius - tol && x <= upper
+                    }
+                    AxisBoundary::Periodic => true,
+                    AxisBoundary::Frozen => k.vel[axis] == 0.0 && x >= lo && x <= hi,
+                };
+                if !inside {
+                    return Some((e.id[i], Some(axis)));
+                }
+            }
+        }
+        None
+    }
+
+    /// Particles put on, just inside and just outside every place a wall,
+    /// an outlet face or the mid-plane allows, with and without soft
+    /// tolerances, some not finite: the first bad particle and its axis
+    /// are the reference's, and every kind of answer occurs.
+    #[test]
+    fn the_bad_particle_check_finds_what_the_reference_finds() {
+        let r = 0.01;
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(5);
+        let domains = [
+            ([AxisBoundary::Walls; 3], None),
+            (
+                [
+                    AxisBoundary::Walls,
+                    AxisBoundary::Periodic,
+                    AxisBoundary::Frozen,
+                ],
+                None,
+            ),
+            (
+                [
+                    AxisBoundary::Walls,
+                    AxisBoundary::Walls,
+                    AxisBoundary::Frozen,
+                ],
+                Some(Outlet {
+                    axis: 1,
+                    mode: OutletMode::Remove,
+                }),
+            ),
+        ];
+        // Answers seen: none, not finite, outside along x, y, z.
+        let mut seen = [0usize; 5];
+        for (axes, outlet) in domains {
+            let domain = Domain {
+                lo: DVec3::ZERO,
+                hi: DVec3::new(1.0, 1.0, 2.0 * r),
+                axes,
+                outlet,
+            };
+            let particles: Vec<NewParticle> = (0..3)
+                .map(|k| NewParticle {
+                    pos: DVec3::new(0.2 + 0.3 * k as f64, 0.5, r),
+                    vel: DVec3::ZERO,
+                    omega: DVec3::ZERO,
+                    radius: r,
+                    material: 0,
+                })
+                .collect();
+            let materials = MaterialTable::single(1.0, ContactParams::ELASTIC_SMOOTH);
+            let config = EngineConfig {
+                skin: 1e-3,
+                ..Default::default()
+            };
+            let mut e: Engine<IndexedHeap> =
+                Engine::new(domain, materials, config, &particles).expect("engine");
+            for trial in 0..3000 {
+                e.config.model =
+                    [ContactModel::Hard, ContactModel::Soft, ContactModel::Hybrid][trial % 3];
+                for i in 0..3 {
+                    e.is_soft[i] = rng.random_bool(0.5);
+                    let tol = if rng.random_bool(0.5) { r } else { 1e-6 * r };
+                    let k = &mut e.kin[i];
+                    for axis in 0..3 {
+                        let (lo, hi) = (e.domain.lo[axis], e.domain.hi[axis]);
+                        let places = [
+                            lo + r - 2.0 * tol,
+                            lo + r - 0.5 * tol,
+                            lo + r,
+                            0.5 * (lo + hi),
+                            hi - r + 0.5 * tol,
+                            hi - r + 2.0 * tol,
+                            hi + 0.5 * tol,
+                            hi + 2.0 * tol,
+                            lo - 0.1,
+                            hi + 0.1,
+                        ];
+                        // Mostly inside, so that later slots and axes are
+                        // reached.
+                        k.pos[axis] = if rng.random_bool(0.8) {
+                            0.5 * (lo + hi)
+                        } else {
+                            places[rng.random_range(0..places.len())]
+                        };
+                        k.vel[axis] = if rng.random_bool(0.7) { 0.0 } else { 0.1 };
+                    }
+                    if rng.random_bool(0.02) {
+                        k.vel.y = f64::NAN;
+                    }
+                }
+                let want = reference(&e);
+                let got = e.find_bad_particle().map(|b| (b.id, b.outside_axis));
+                assert_eq!(got, want, "axes {axes:?}, trial {trial}");
+                seen[match want {
+                    None => 0,
+                    Some((_, None)) => 1,
+                    Some((_, Some(axis))) => 2 + axis,
+                }] += 1;
+            }
+        }
+        assert!(seen.iter().all(|&n| n > 20), "{seen:?}");
+    }
+}
