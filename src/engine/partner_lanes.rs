@@ -110,7 +110,7 @@ fn contact_delays_avx2(
     partners: &Partners,
     times: &mut [f64; CHUNK],
 ) {
-    const { assert!(CHUNK % 4 == 0) };
+    const { assert!(CHUNK.is_multiple_of(4)) };
     let centre = Centre::new(ki, now);
     let (groups, rest) = entries.as_chunks::<4>();
     let outs = times.as_chunks_mut::<4>().0;
