@@ -225,52 +225,53 @@ mod tests {
     use crate::materials::MaterialTable;
     use crate::queue::IndexedHeap;
 
-    /// The rule of [`Engine::find_bad_particle`]'s doc, one particle and
-    /// axis at a time: its reference. Returns (id, axis).
-    fn reference(e: &Engine<IndexedHeap>) -> Option<(u64, Option<usize>)> {
-        for i in 0..e.kin.len() {
-            if !e.active[i] {
-                continue;
+    /// Places along one axis for a sphere of radius `r` allowed `tol`
+    /// past a wall, each with whether a sane centre may be there: on,
+    /// just inside and just outside every bound the rules set (half and
+    /// twice the tolerance), and far outside.
+    fn places(
+        axis: AxisBoundary,
+        upper_wall: bool,
+        lo: f64,
+        hi: f64,
+        r: f64,
+        tol: f64,
+    ) -> Vec<(f64, bool)> {
+        let mid = 0.5 * (lo + hi);
+        match axis {
+            AxisBoundary::Walls => {
+                let upper = if upper_wall { hi - r } else { hi };
+                vec![
+                    (lo + r - 2.0 * tol, false),
+                    (lo + r - 0.5 * tol, true),
+                    (lo + r, true),
+                    (mid, true),
+                    (upper, true),
+                    (upper + 0.5 * tol, true),
+                    (upper + 2.0 * tol, false),
+                    (lo - 0.1, false),
+                    (hi + 0.1, false),
+                ]
             }
-            let k = &e.kin[i];
-            let pos = k.position_at(e.now);
-            if !(pos.is_finite() && k.vel.is_finite() && e.spins.get(i).is_finite()) {
-                return Some((e.id[i], None));
-            }
-            let soft = match e.config.model {
-                ContactModel::Hard => false,
-                ContactModel::Soft => true,
-                ContactModel::Hybrid => e.is_soft[i],
-            };
-            let tol = if soft { k.radius } else { 1e-6 * k.radius };
-            for axis in 0..3 {
-                let (lo, hi, x) = (e.domain.lo[axis], e.domain.hi[axis], pos[axis]);
-                let inside = match e.domain.axes[axis] {
-                    AxisBoundary::Walls => {
-                        let upper = if e.domain.has_wall((2 * axis + 1) as Face) {
-                            hi - k.radius + tol
-                        } else {
-                            hi + tol
-                        };
-                        x >= lo + k.radius - tol && x <= upper
-                    }
-                    AxisBoundary::Periodic => true,
-                    AxisBoundary::Frozen => k.vel[axis] == 0.0 && x >= lo && x <= hi,
-                };
-                if !inside {
-                    return Some((e.id[i], Some(axis)));
-                }
-            }
+            AxisBoundary::Periodic => vec![(mid, true), (lo - 0.1, true), (hi + 0.1, true)],
+            AxisBoundary::Frozen => vec![
+                (mid, true),
+                (lo, true),
+                (hi, true),
+                (lo - 0.5 * tol, false),
+                (hi + 0.5 * tol, false),
+            ],
         }
-        None
     }
 
-    /// Particles put on, just inside and just outside every place a wall,
-    /// an outlet face or the mid-plane allows, with and without soft
-    /// tolerances, some not finite: the first bad particle and its axis
-    /// are the reference's, and every kind of answer occurs.
+    /// Particles put at the [`places`] of every axis, with the tolerance
+    /// their model gives them (hard, soft, hybrid with either kind), on
+    /// walled, periodic, planar and outlet domains, some moving off the
+    /// mid-plane, some not finite: the first bad particle in slot order and
+    /// its first bad axis are the ones the places were chosen to give, and
+    /// every kind of answer occurs.
     #[test]
-    fn the_bad_particle_check_finds_what_the_reference_finds() {
+    fn the_bad_particle_check_finds_the_particles_placed_outside() {
         let r = 0.01;
         let mut rng = Xoshiro256PlusPlus::seed_from_u64(5);
         let domains = [
@@ -321,42 +322,51 @@ mod tests {
             let mut e: Engine<IndexedHeap> =
                 Engine::new(domain, materials, config, &particles).expect("engine");
             for trial in 0..3000 {
-                e.config.model =
+                let model =
                     [ContactModel::Hard, ContactModel::Soft, ContactModel::Hybrid][trial % 3];
+                e.config.model = model;
+                let mut want = None;
                 for i in 0..3 {
                     e.is_soft[i] = rng.random_bool(0.5);
-                    let tol = if rng.random_bool(0.5) { r } else { 1e-6 * r };
+                    let soft = model == ContactModel::Soft
+                        || (model == ContactModel::Hybrid && e.is_soft[i]);
+                    let tol = if soft { r } else { 1e-6 * r };
+                    let now = e.now;
                     let k = &mut e.kin[i];
-                    for axis in 0..3 {
+                    k.time = now;
+                    let mut first_outside = None;
+                    for (axis, &kind) in axes.iter().enumerate() {
                         let (lo, hi) = (e.domain.lo[axis], e.domain.hi[axis]);
-                        let places = [
-                            lo + r - 2.0 * tol,
-                            lo + r - 0.5 * tol,
-                            lo + r,
-                            0.5 * (lo + hi),
-                            hi - r + 0.5 * tol,
-                            hi - r + 2.0 * tol,
-                            hi + 0.5 * tol,
-                            hi + 2.0 * tol,
-                            lo - 0.1,
-                            hi + 0.1,
-                        ];
+                        let upper_wall = e.domain.has_wall((2 * axis + 1) as Face);
+                        let places = places(kind, upper_wall, lo, hi, r, tol);
                         // Mostly inside, so that later slots and axes are
                         // reached.
-                        k.pos[axis] = if rng.random_bool(0.8) {
-                            0.5 * (lo + hi)
+                        let (x, inside) = if rng.random_bool(0.8) {
+                            (0.5 * (lo + hi), true)
                         } else {
                             places[rng.random_range(0..places.len())]
                         };
+                        k.pos[axis] = x;
                         k.vel[axis] = if rng.random_bool(0.7) { 0.0 } else { 0.1 };
+                        let moves_off_plane = kind == AxisBoundary::Frozen && k.vel[axis] != 0.0;
+                        if (!inside || moves_off_plane) && first_outside.is_none() {
+                            first_outside = Some(axis);
+                        }
                     }
-                    if rng.random_bool(0.02) {
+                    let finite = rng.random_bool(0.98);
+                    if !finite {
                         k.vel.y = f64::NAN;
                     }
+                    if want.is_none() {
+                        want = match (finite, first_outside) {
+                            (false, _) => Some((e.id[i], None)),
+                            (true, Some(axis)) => Some((e.id[i], Some(axis))),
+                            (true, None) => None,
+                        };
+                    }
                 }
-                let want = reference(&e);
                 let got = e.find_bad_particle().map(|b| (b.id, b.outside_axis));
-                assert_eq!(got, want, "axes {axes:?}, trial {trial}");
+                assert_eq!(got, want, "axes {axes:?}, {model:?}, trial {trial}");
                 seen[match want {
                     None => 0,
                     Some((_, None)) => 1,
