@@ -11,6 +11,7 @@
 
 use glam::DVec3;
 
+use crate::domain::IDENTITY_IMAGE;
 use crate::prefetch::{prefetch, prefetch_at};
 
 /// Marks an empty link in the cell grid.
@@ -221,6 +222,38 @@ struct BlockRows {
     exact: bool,
 }
 
+/// Index of the full 3 × 3 × 3 block among a [`CellGrid`]'s interior
+/// blocks.
+const NEAR_BLOCK: usize = 0;
+
+/// Index of the layer a crossing through a face of `axis` (towards + when
+/// `up`) newly meets, among a [`CellGrid`]'s interior blocks.
+fn layer_block(axis: usize, up: bool) -> usize {
+    1 + 2 * axis + usize::from(up)
+}
+
+/// The offsets `lo..=hi` per axis of interior block `block`.
+fn interior_block_offsets(block: usize) -> ([i64; 3], [i64; 3]) {
+    if block == NEAR_BLOCK {
+        return ([-1; 3], [1; 3]);
+    }
+    let (axis, up) = ((block - 1) / 2, (block - 1) % 2 == 1);
+    let (mut lo, mut hi) = ([-1; 3], [1; 3]);
+    let offset = if up { 1 } else { -1 };
+    (lo[axis], hi[axis]) = (offset, offset);
+    (lo, hi)
+}
+
+/// The rows of a block scan around any cell away from every face: each
+/// row's first cell as an offset from the cell's flat index (z outer, y
+/// inner), and the consecutive cells a row holds. No cell is shifted.
+#[derive(Clone, Copy, Debug, Default)]
+struct InteriorBlock {
+    rows: [i32; 9],
+    count: u8,
+    len: u8,
+}
+
 /// Spare bytes after a [`CellGrid`]'s occupancy bits, so that a row of
 /// cells can be read as one unaligned 8-byte word.
 const OCCUPANCY_PAD: usize = 8;
@@ -271,6 +304,16 @@ pub struct CellGrid {
     /// than 3: blocks are 3D and list each cell once, which a scan within
     /// a distance needs to skip cells ([`CellGrid::near_in_block`]).
     blocks_are_solid: bool,
+    /// Per axis, the cells whose blocks need no wrap and no clipping: the
+    /// first and how many (`c − first < count`, wrapping), so that one
+    /// unsigned compare an axis picks [`CellGrid::interior_blocks`]. 1 and
+    /// n − 2 on an axis of n ≥ 3 cells; 0 and 1 on a flat one; none on an
+    /// axis of 2 cells or a periodic one of fewer than 3.
+    interior_first: [u32; 3],
+    interior_count: [u32; 3],
+    /// The full block and the six layers ([`NEAR_BLOCK`], [`layer_block`])
+    /// around an interior cell.
+    interior_blocks: [InteriorBlock; 7],
 }
 
 /// A slot's cell and its predecessor in the cell's list ([`CellGrid`]).
@@ -340,6 +383,9 @@ impl CellGrid {
             next: Vec::new(),
             links: Vec::new(),
             blocks_are_solid: false,
+            interior_first: [0; 3],
+            interior_count: [0; 3],
+            interior_blocks: [InteriorBlock::default(); 7],
         };
         grid.reshape(lo, hi, min_width, periodic, slots);
         grid
@@ -388,6 +434,18 @@ impl CellGrid {
         });
         self.periodic = periodic;
         self.blocks_are_solid = (0..3).all(|a| cells[a] >= 2 && !(periodic[a] && cells[a] < 3));
+        for a in 0..3 {
+            let flat = cells[a] == 1 && !periodic[a];
+            (self.interior_first[a], self.interior_count[a]) = if flat {
+                (0, 1)
+            } else {
+                (1, cells[a].saturating_sub(2) as u32)
+            };
+        }
+        self.interior_blocks = std::array::from_fn(|block| {
+            let (lo, hi) = interior_block_offsets(block);
+            self.interior_block(lo, hi)
+        });
         self.head.clear();
         self.head.resize(total, NONE);
         self.head.shrink_to_fit();
@@ -572,7 +630,7 @@ impl CellGrid {
     /// As [`CellGrid::for_each_near`], around cell `c`.
     #[inline]
     pub fn for_each_near_cell(&self, c: [usize; 3], f: impl FnMut(u32, Option<u32>)) {
-        self.for_each_in_block(c, [-1; 3], [1; 3], f);
+        self.for_each_in_known_block(c, NEAR_BLOCK, u64::MAX, f);
     }
 
     /// As [`CellGrid::for_each_near_cell`] around cell `c`, which holds
@@ -589,9 +647,8 @@ impl CellGrid {
         radius: f64,
         f: impl FnMut(u32, Option<u32>),
     ) {
-        let rows = self.block_rows(c, [-1; 3], [1; 3]);
         let near = self.near_in_block(c, p, radius);
-        self.visit_block(&rows, self.occupied_in_block(&rows) & near, f);
+        self.for_each_in_known_block(c, NEAR_BLOCK, near, f);
     }
 
     /// The cells of the block at offsets −1..=1 around cell `c` (bits as
@@ -667,10 +724,7 @@ impl CellGrid {
         up: bool,
         f: impl FnMut(u32, Option<u32>),
     ) {
-        let (mut lo, mut hi) = ([-1; 3], [1; 3]);
-        let offset = if up { 1 } else { -1 };
-        (lo[axis], hi[axis]) = (offset, offset);
-        self.for_each_in_block(c, lo, hi, f);
+        self.for_each_in_known_block(c, layer_block(axis, up), u64::MAX, f);
     }
 
     /// The axis a pair sweep cuts into layers: the last one with more than
@@ -799,6 +853,72 @@ impl CellGrid {
         self.visit_block(&rows, self.occupied_in_block(&rows), f);
     }
 
+    /// Interior block of offsets `lo..=hi` per axis (each within −1..=1;
+    /// only 0 on a flat axis).
+    fn interior_block(&self, lo: [i64; 3], hi: [i64; 3]) -> InteriorBlock {
+        let mut block = InteriorBlock::default();
+        let range: [(i64, i64); 3] = std::array::from_fn(|a| {
+            if self.interior_first[a] == 0 {
+                (lo[a].max(0), hi[a].min(0))
+            } else {
+                (lo[a], hi[a])
+            }
+        });
+        if range.iter().any(|&(l, h)| l > h) {
+            return block;
+        }
+        block.len = (range[0].1 - range[0].0 + 1) as u8;
+        let (stride_y, stride_z) = (self.cells[0] as i64, (self.cells[0] * self.cells[1]) as i64);
+        for dz in range[2].0..=range[2].1 {
+            for dy in range[1].0..=range[1].1 {
+                block.rows[usize::from(block.count)] =
+                    (range[0].0 + dy * stride_y + dz * stride_z) as i32;
+                block.count += 1;
+            }
+        }
+        block
+    }
+
+    /// Calls `f(slot, image)` for every particle of the cells of interior
+    /// block `block` ([`NEAR_BLOCK`], [`layer_block`]) around cell `c` that `mask` keeps (bits as
+    /// [`CellGrid::occupied_in_block`]), as [`CellGrid::for_each_in_block`]
+    /// does: from the block's table when `c` lies away from every face
+    /// (most cells, also in planar runs), where no row wraps or is clipped.
+    #[inline(always)]
+    fn for_each_in_known_block(
+        &self,
+        c: [usize; 3],
+        block: usize,
+        mask: u64,
+        mut f: impl FnMut(u32, Option<u32>),
+    ) {
+        let interior = (0..3)
+            .all(|a| (c[a] as u32).wrapping_sub(self.interior_first[a]) < self.interior_count[a]);
+        if !interior {
+            let (lo, hi) = interior_block_offsets(block);
+            let rows = self.block_rows(c, lo, hi);
+            self.visit_block(&rows, self.occupied_in_block(&rows) & mask, f);
+            return;
+        }
+        let block = &self.interior_blocks[block];
+        let centre = self.flat(c) as i64;
+        let rows = &block.rows[..usize::from(block.count)];
+        let mut cells = rows.iter().enumerate().fold(0u64, |cells, (row, &offset)| {
+            let first = (centre + i64::from(offset)) as usize;
+            cells | u64::from(self.occupancy_run(first, usize::from(block.len))) << (4 * row)
+        }) & mask;
+        while cells != 0 {
+            let bit = cells.trailing_zeros() as usize;
+            cells &= cells - 1;
+            let cell = (centre + i64::from(block.rows[bit >> 2])) as usize + (bit & 3);
+            let mut j = self.head[cell];
+            while j != NONE {
+                f(j, Some(IDENTITY_IMAGE));
+                j = self.next[j as usize];
+            }
+        }
+    }
+
     /// The occupied cells of block `rows`: bit 4·row + k for cell xs[k]
     /// of the row (4 bits a row, so that row and cell come from shifts).
     #[inline(always)]
@@ -840,9 +960,8 @@ impl CellGrid {
     }
 
     /// The rows along x of the block at offsets `lo..=hi` from cell `c`,
-    /// z outer and y inner. A cell away from every face (most of them,
-    /// also in planar runs) has no wrap and no repeat, and its rows are
-    /// plain offsets.
+    /// z outer and y inner, for a cell on a face: wrapped on periodic
+    /// axes, clipped at walls ([`CellGrid::interior_blocks`] for the rest).
     #[inline(always)]
     fn block_rows(&self, c: [usize; 3], lo: [i64; 3], hi: [i64; 3]) -> BlockRows {
         let d = self.cells;
@@ -855,36 +974,6 @@ impl CellGrid {
             count: 0,
             exact: true,
         };
-        // A flat axis (one cell, walls: a planar run's out-of-plane axis)
-        // offers only its one cell, offset 0.
-        let flat = |a: usize| d[a] == 1 && !self.periodic[a];
-        if (0..3).all(|a| (c[a] >= 1 && c[a] + 1 < d[a]) || flat(a)) {
-            let mut range = [(0i64, 0i64); 3];
-            for a in 0..3 {
-                range[a] = if !flat(a) {
-                    (lo[a], hi[a])
-                } else if lo[a] <= 0 && 0 <= hi[a] {
-                    (0, 0)
-                } else {
-                    return rows;
-                };
-            }
-            for (k, offset) in (range[0].0..=range[0].1).enumerate() {
-                rows.xs[k] = ((c[0] as i64 + offset) as u32, 1);
-                rows.x_count += 1;
-            }
-            let (stride_y, stride_z) = (d[0] as i64, (d[0] * d[1]) as i64);
-            let row_zero = (c[1] * d[0] + c[2] * d[0] * d[1]) as i64;
-            // Image (1, 1, 1): no shift.
-            rows.image = [3 + 9; 9];
-            for dz in range[2].0..=range[2].1 {
-                for dy in range[1].0..=range[1].1 {
-                    rows.base[rows.count] = (row_zero + dy * stride_y + dz * stride_z) as u32;
-                    rows.count += 1;
-                }
-            }
-            return rows;
-        }
         (rows.xs, rows.x_count) = self.axis_cells(0, c[0], lo[0], hi[0]);
         let (ys, ny) = self.axis_cells(1, c[1], lo[1], hi[1]);
         let (zs, nz) = self.axis_cells(2, c[2], lo[2], hi[2]);
@@ -923,20 +1012,22 @@ impl CellGrid {
     #[inline(always)]
     fn axis_cells(&self, axis: usize, c: usize, lo: i64, hi: i64) -> ([(u32, u32); 3], usize) {
         let n = self.cells[axis] as i64;
+        // Only a periodic axis of fewer than 3 cells meets a cell twice.
+        let repeats = self.periodic[axis] && n < 3;
         let mut cells = [(0u32, 1u32); 3];
         let mut k = 0;
-        for offset in lo..=hi {
+        for offset in lo..hi + 1 {
             let mut v = c as i64 + offset;
             let mut image = 1;
             if v < 0 || v >= n {
                 if !self.periodic[axis] {
                     continue;
                 }
-                // Wrapped below 0: the neighbour sits near hi, shift -L.
-                image = if v < 0 { 0 } else { 2 };
-                v = v.rem_euclid(n);
+                // Wrapped below 0: the neighbour sits near hi, shift -L
+                // (offsets lie within −1..=1, so one period brings it back).
+                (image, v) = if v < 0 { (0, v + n) } else { (2, v - n) };
             }
-            if !cells[..k].iter().any(|r| r.0 == v as u32) {
+            if !(repeats && cells[..k].iter().any(|r| r.0 == v as u32)) {
                 cells[k] = (v as u32, image);
                 k += 1;
             }
@@ -1140,15 +1231,18 @@ mod tests {
                     for y in 0..d[1] {
                         for x in 0..d[0] {
                             let c = [x, y, z];
-                            let mut scans = vec![([-1; 3], [1; 3])];
-                            for axis in 0..3 {
-                                for offset in [-1, 1] {
-                                    let (mut lo, mut hi) = ([-1; 3], [1; 3]);
+                            // The full block, then the layers below and
+                            // above along x, y, z; each scanned through
+                            // its public call (the interior tables where c
+                            // is away from the faces) and the general one.
+                            for block in 0..7 {
+                                let mut lo = [-1; 3];
+                                let mut hi = [1; 3];
+                                if block > 0 {
+                                    let (axis, offset) =
+                                        ((block - 1) / 2, [-1, 1][(block - 1) % 2]);
                                     (lo[axis], hi[axis]) = (offset, offset);
-                                    scans.push((lo, hi));
                                 }
-                            }
-                            for (lo, hi) in scans {
                                 let mut expected = Vec::new();
                                 for (cell, image) in block_reference(&g, c, lo, hi) {
                                     for &(_, e) in occupied.iter().filter(|o| o.0 as usize == cell)
@@ -1156,12 +1250,22 @@ mod tests {
                                         expected.push((e, image));
                                     }
                                 }
-                                let mut got = Vec::new();
-                                g.for_each_in_block(c, lo, hi, |e, image| got.push((e, image)));
-                                assert_eq!(
-                                    got, expected,
-                                    "grid {size:?} cell {c:?} block {lo:?}..{hi:?}"
-                                );
+                                let mut general = Vec::new();
+                                g.for_each_in_block(c, lo, hi, |e, image| general.push((e, image)));
+                                let mut public = Vec::new();
+                                let mut take = |e, image| public.push((e, image));
+                                if block == 0 {
+                                    g.for_each_near_cell(c, &mut take);
+                                } else {
+                                    let (axis, up) = ((block - 1) / 2, block % 2 == 0);
+                                    g.for_each_in_new_layer(c, axis, up, &mut take);
+                                }
+                                for got in [general, public] {
+                                    assert_eq!(
+                                        got, expected,
+                                        "grid {size:?} cell {c:?} block {lo:?}..{hi:?}"
+                                    );
+                                }
                             }
                         }
                     }
