@@ -232,8 +232,9 @@ fn layer_block(axis: usize, up: bool) -> usize {
     1 + 2 * axis + usize::from(up)
 }
 
-/// The offsets `lo..=hi` per axis of interior block `block`.
-fn interior_block_offsets(block: usize) -> ([i64; 3], [i64; 3]) {
+/// The offsets `lo..=hi` per axis of block `block` ([`NEAR_BLOCK`],
+/// [`layer_block`]).
+fn block_offsets(block: usize) -> ([i64; 3], [i64; 3]) {
     if block == NEAR_BLOCK {
         return ([-1; 3], [1; 3]);
     }
@@ -443,7 +444,7 @@ impl CellGrid {
             };
         }
         self.interior_blocks = std::array::from_fn(|block| {
-            let (lo, hi) = interior_block_offsets(block);
+            let (lo, hi) = block_offsets(block);
             self.interior_block(lo, hi)
         });
         self.head.clear();
@@ -857,6 +858,7 @@ impl CellGrid {
     /// only 0 on a flat axis).
     fn interior_block(&self, lo: [i64; 3], hi: [i64; 3]) -> InteriorBlock {
         let mut block = InteriorBlock::default();
+        // A flat axis (its interior starts at 0) offers only offset 0.
         let range: [(i64, i64); 3] = std::array::from_fn(|a| {
             if self.interior_first[a] == 0 {
                 (lo[a].max(0), hi[a].min(0))
@@ -879,11 +881,12 @@ impl CellGrid {
         block
     }
 
-    /// Calls `f(slot, image)` for every particle of the cells of interior
-    /// block `block` ([`NEAR_BLOCK`], [`layer_block`]) around cell `c` that `mask` keeps (bits as
-    /// [`CellGrid::occupied_in_block`]), as [`CellGrid::for_each_in_block`]
-    /// does: from the block's table when `c` lies away from every face
-    /// (most cells, also in planar runs), where no row wraps or is clipped.
+    /// Calls `f(slot, image)` for every particle of the cells of block
+    /// `block` ([`NEAR_BLOCK`], [`layer_block`]) around cell `c` that
+    /// `mask` keeps (bits as [`CellGrid::occupied_in_block`]), as
+    /// [`CellGrid::for_each_in_block`] does: from the block's table when
+    /// `c` lies away from every face (most cells, also in planar runs),
+    /// where no row wraps or is clipped.
     #[inline(always)]
     fn for_each_in_known_block(
         &self,
@@ -895,7 +898,7 @@ impl CellGrid {
         let interior = (0..3)
             .all(|a| (c[a] as u32).wrapping_sub(self.interior_first[a]) < self.interior_count[a]);
         if !interior {
-            let (lo, hi) = interior_block_offsets(block);
+            let (lo, hi) = block_offsets(block);
             let rows = self.block_rows(c, lo, hi);
             self.visit_block(&rows, self.occupied_in_block(&rows) & mask, f);
             return;
