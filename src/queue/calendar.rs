@@ -208,24 +208,33 @@ impl CalendarQueue {
             let b = (a & (nb - 1)) as usize;
             slot.loc = b as u32;
             let line = &mut self.lines[b];
+            self.ring_len += 1;
             if let Some(free) = line.idx.get_mut(line.len as usize) {
                 *free = e.i;
                 line.len += 1;
                 slot.pos = IN_LINE;
             } else {
-                let spill = self.spills.entry(b as u32).or_default();
-                slot.pos = spill.len() as u32;
-                spill.push(e.i);
-                self.spill_len += 1;
+                self.push_spill(b, e.i);
             }
-            self.ring_len += 1;
         } else {
             self.overflow_min = self.overflow_min.min(a);
             self.push_overflow(e);
         }
     }
 
+    /// Puts particle `i` into the spill of full ring bucket `b` (rare).
+    #[cold]
+    #[inline(never)]
+    fn push_spill(&mut self, b: usize, i: u32) {
+        let spill = self.spills.entry(b as u32).or_default();
+        self.slots[i as usize].pos = spill.len() as u32;
+        spill.push(i);
+        self.spill_len += 1;
+    }
+
     /// Puts particle `i`'s event at `+∞` into its list.
+    #[cold]
+    #[inline(never)]
     fn push_infinite(&mut self, i: u32) {
         self.slots[i as usize] = Slot {
             t: f64::INFINITY,
@@ -235,6 +244,8 @@ impl CalendarQueue {
         self.infinite.push(i);
     }
 
+    #[cold]
+    #[inline(never)]
     fn push_overflow(&mut self, e: Entry) {
         self.slots[e.i as usize] = Slot {
             t: e.t,
@@ -301,6 +312,7 @@ impl CalendarQueue {
 
     /// Refills the empty heap with the next bucket of events. Returns false
     /// if there is no finite event.
+    #[inline(never)]
     fn advance(&mut self) -> bool {
         if self.staged || self.ring_len == 0 {
             return self.rebuild();
@@ -354,19 +366,45 @@ impl CalendarQueue {
         }
     }
 
-    /// Makes ring bucket `b` (of bucket number `cur`) the current heap.
+    /// Makes ring bucket `b` (of bucket number `cur`) the current heap,
+    /// which is empty.
     fn load(&mut self, b: usize) {
-        let mut heap = std::mem::take(&mut self.heap);
-        self.drain_bucket(b, &mut heap);
-        self.stats.loads += 1;
-        self.stats.heap_events += heap.len();
-        indexed_heap::heapify(&mut heap, |_, _| {});
-        for (k, e) in heap.iter().enumerate() {
-            let slot = &mut self.slots[e.i as usize];
+        debug_assert!(self.heap.is_empty());
+        let line = &mut self.lines[b];
+        let n = line.len as usize;
+        line.len = 0;
+        self.ring_len -= n;
+        let slots = &mut self.slots;
+        for (k, &i) in line.idx[..n].iter().enumerate() {
+            let slot = &mut slots[i as usize];
             slot.loc = HEAP;
             slot.pos = k as u32;
+            self.heap.push(Entry { t: slot.t, i });
         }
-        self.heap = heap;
+        if self.spill_len > 0 {
+            self.load_spill(b);
+        }
+        self.stats.loads += 1;
+        self.stats.heap_events += self.heap.len();
+        let slots = &mut self.slots;
+        indexed_heap::heapify(&mut self.heap, |j, k| slots[j as usize].pos = k as u32);
+    }
+
+    /// Appends ring bucket `b`'s spill, if it has one, to the heap (rare).
+    #[cold]
+    #[inline(never)]
+    fn load_spill(&mut self, b: usize) {
+        let Some(spill) = self.spills.remove(&(b as u32)) else {
+            return;
+        };
+        self.ring_len -= spill.len();
+        self.spill_len -= spill.len();
+        for i in spill {
+            let slot = &mut self.slots[i as usize];
+            slot.loc = HEAP;
+            slot.pos = self.heap.len() as u32;
+            self.heap.push(Entry { t: slot.t, i });
+        }
     }
 
     /// Moves overflow events now inside the ring window into the ring.
@@ -380,6 +418,25 @@ impl CalendarQueue {
         // Freed rather than kept: after a rebuild it holds every event (16
         // bytes per particle), and later redistributions are small.
         self.scratch = Vec::new();
+    }
+
+    /// Room for the slots of particles `0..n` (rare: indices beyond the
+    /// capacity asked for).
+    #[cold]
+    #[inline(never)]
+    fn grow_slots(&mut self, n: usize) {
+        self.slots.resize(n, NO_SLOT);
+    }
+
+    /// Ends a check period: rebuilds when the bucket width is poor or the
+    /// ring too short for the events, and restarts the statistics.
+    #[cold]
+    #[inline(never)]
+    fn judge_width(&mut self) {
+        if self.width_is_poor() || ring_buckets_for(self.len) > self.lines.len() {
+            self.rebuild();
+        }
+        self.stats = Stats::default();
     }
 
     /// True when the statistics of the last check period show buckets far
@@ -482,14 +539,11 @@ impl EventQueue for CalendarQueue {
         debug_assert!(!t.is_nan(), "event time of particle {i} is NaN");
         let iu = i as usize;
         if iu >= self.slots.len() {
-            self.slots.resize(iu + 1, NO_SLOT);
+            self.grow_slots(iu + 1);
         }
         self.stats.sets += 1;
         if self.stats.sets > 2 * self.len + CHECK_MIN_SETS {
-            if self.width_is_poor() || ring_buckets_for(self.len) > self.lines.len() {
-                self.rebuild();
-            }
-            self.stats = Stats::default();
+            self.judge_width();
         }
         let slot = self.slots[iu];
         // Staged (after `clear`) and infinite events have no bucket yet.
