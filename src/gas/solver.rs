@@ -182,6 +182,9 @@ pub struct GasPhase {
     pub pressure_share: [Vec<f64>; 3],
     role: [Vec<FaceRole>; 3],
     base_role: [Vec<FaceRole>; 3],
+    /// Which jets were on when `role` was last set from `base_role`
+    /// (empty before the first time): the roles change only with them.
+    jets_on: Vec<bool>,
     cells_of_face: [Vec<FaceCells>; 3],
     interior: [Vec<InteriorFace>; 3],
     /// Old-level gas fraction on faces, per step.
@@ -295,6 +298,7 @@ impl GasPhase {
             pressure_share: faces.map(|n| vec![1.0; n]),
             role: faces.map(|n| vec![FaceRole::Solved; n]),
             base_role: faces.map(|n| vec![FaceRole::Solved; n]),
+            jets_on: Vec::new(),
             cells_of_face: Default::default(),
             interior: Default::default(),
             eps_face_old: faces.map(|n| vec![0.0; n]),
@@ -426,6 +430,7 @@ impl GasPhase {
 
     /// Roles of the boundary faces from the face conditions (jets aside).
     fn set_base_roles(&mut self) {
+        self.jets_on.clear();
         for a in 0..3 {
             if !self.is_velocity_axis(a) {
                 continue;
@@ -457,6 +462,11 @@ impl GasPhase {
         if self.config.jets.is_empty() {
             return;
         }
+        let on = self.config.jets.iter().map(|jet| jet.is_on(t));
+        if self.jets_on.iter().copied().eq(on.clone()) {
+            return;
+        }
+        self.jets_on = on.collect();
         for a in 0..3 {
             self.role[a].clone_from(&self.base_role[a]);
         }
