@@ -19,8 +19,9 @@
 //!
 //! A ring bucket is half a cache line holding up to [`LINE_CAP`] particle
 //! indices (event times live in the per-particle slots), with a rarely used
-//! spill vector beyond that (kept in a map, by bucket); so moving an event between buckets touches about
-//! three cache lines. Removal from a line is a scan of at most [`LINE_CAP`]
+//! spill vector beyond that (kept in a map, by bucket, and only while the
+//! line is full, so that the map is asked only about full lines); so moving
+//! an event between buckets touches about three cache lines. Removal from a line is a scan of at most [`LINE_CAP`]
 //! indices; every other container records positions in the slots. Hence `set`
 //! and `remove` are O(1) outside the small current heap.
 //!
@@ -60,7 +61,7 @@ const LINE_CAP: usize = 7;
 
 /// Hashes a ring bucket number for the spill map: one multiplication
 /// (Fibonacci hashing) instead of SipHash, whose cost showed in profiles
-/// (the map is asked on every bucket load while any spill exists). Keys
+/// (when every bucket load asked the map while any spill existed). Keys
 /// are our own bucket numbers, so no protection against chosen keys is
 /// needed.
 #[derive(Default)]
@@ -222,6 +223,25 @@ impl CalendarQueue {
         }
     }
 
+    /// Moves an event of ring bucket `b`'s spill, if it has one, into the
+    /// free place of its line, which keeps a spill only behind a full line.
+    #[cold]
+    #[inline(never)]
+    fn refill_line(&mut self, b: usize) {
+        let Some(spill) = self.spills.get_mut(&(b as u32)) else {
+            return;
+        };
+        let i = spill.pop().expect("spills are never empty");
+        if spill.is_empty() {
+            self.spills.remove(&(b as u32));
+        }
+        self.spill_len -= 1;
+        let line = &mut self.lines[b];
+        line.idx[line.len as usize] = i;
+        line.len += 1;
+        self.slots[i as usize].pos = IN_LINE;
+    }
+
     /// Puts particle `i` into the spill of full ring bucket `b` (rare).
     #[cold]
     #[inline(never)]
@@ -296,6 +316,9 @@ impl CalendarQueue {
                     line.len -= 1;
                 }
                 self.ring_len -= 1;
+                if n == LINE_CAP && self.spill_len > 0 {
+                    self.refill_line(b as usize);
+                }
             }
             b => {
                 let spill = self.spills.get_mut(&b).expect("slot says a spill holds it");
@@ -342,7 +365,8 @@ impl CalendarQueue {
 
     #[inline]
     fn bucket_is_empty(&self, b: usize) -> bool {
-        self.lines[b].len == 0 && (self.spill_len == 0 || !self.spills.contains_key(&(b as u32)))
+        // A spill only ever sits behind a full line.
+        self.lines[b].len == 0
     }
 
     /// Appends the events of ring bucket `b` to `out`, emptying the bucket.
@@ -357,7 +381,8 @@ impl CalendarQueue {
         };
         out.extend(self.lines[b].idx[..n].iter().map(entry));
         self.ring_len -= n;
-        if self.spill_len > 0
+        if n == LINE_CAP
+            && self.spill_len > 0
             && let Some(spill) = self.spills.remove(&(b as u32))
         {
             out.extend(spill.iter().map(entry));
@@ -381,7 +406,7 @@ impl CalendarQueue {
             slot.pos = k as u32;
             self.heap.push(Entry { t: slot.t, i });
         }
-        if self.spill_len > 0 {
+        if n == LINE_CAP && self.spill_len > 0 {
             self.load_spill(b);
         }
         self.stats.loads += 1;
@@ -816,6 +841,12 @@ mod tests {
             count += 1;
         }
         assert_eq!(count, q.len);
+        for b in q.spills.keys() {
+            assert_eq!(
+                q.lines[*b as usize].len as usize, LINE_CAP,
+                "spill {b} behind a line with room"
+            );
+        }
         let in_lines: usize = q.lines.iter().map(|l| l.len as usize).sum();
         let spilled: usize = q.spills.values().map(Vec::len).sum();
         assert_eq!(q.spill_len, spilled);

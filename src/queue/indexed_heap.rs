@@ -103,11 +103,17 @@ pub(crate) fn push(heap: &mut Vec<Entry>, e: Entry, place: impl FnMut(u32, usize
 
 /// Removes the entry at `k` (which must be in bounds) and restores heap order.
 #[inline(always)]
-pub(crate) fn remove_at(heap: &mut Vec<Entry>, k: usize, place: impl FnMut(u32, usize)) {
+pub(crate) fn remove_at(heap: &mut Vec<Entry>, k: usize, mut place: impl FnMut(u32, usize)) {
     let removed = heap[k];
     let Some(last) = heap.pop() else { return };
     if k < heap.len() {
         heap[k] = last;
+        // A heap of one: nothing to sift (the calendar's current bucket
+        // mostly holds one or two events).
+        if heap.len() == 1 {
+            place(last.i, 0);
+            return;
+        }
         if last.before(removed) {
             sift_up(heap, k, place);
         } else {
