@@ -591,10 +591,19 @@ impl EventQueue for CalendarQueue {
                 self.slots[iu].t = t;
                 return;
             }
+            if slot.loc == HEAP {
+                // The common case: the event just processed leaves the
+                // heap for a later bucket.
+                let slots = &mut self.slots;
+                indexed_heap::remove_at(&mut self.heap, slot.pos as usize, |j, k| {
+                    slots[j as usize].pos = k as u32
+                });
+                self.place(Entry { t, i }, a);
+                return;
+            }
         }
-        // Into another container, or a first event (the common case: the
-        // event just processed leaves the heap for a ring bucket). Each
-        // branch below rewrites the whole slot.
+        // Into another container, or a first event. Each branch below
+        // rewrites the whole slot.
         if !self.unlink(i, slot) {
             self.len += 1;
         }
