@@ -21,9 +21,10 @@
 //! indices (event times live in the per-particle slots), with a rarely used
 //! spill vector beyond that (kept in a map, by bucket, and only while the
 //! line is full, so that the map is asked only about full lines); so moving
-//! an event between buckets touches about three cache lines. Removal from a line is a scan of at most [`LINE_CAP`]
-//! indices; every other container records positions in the slots. Hence `set`
-//! and `remove` are O(1) outside the small current heap.
+//! an event between buckets touches about three cache lines. Removal from a
+//! line is a scan of at most [`LINE_CAP`] indices; every other container
+//! records positions in the slots. Hence `set` and `remove` are O(1)
+//! outside the small current heap.
 //!
 //! The width is re-tuned from the density of the earliest pending events
 //! whenever the queue is rebuilt: on the first `peek_min` after `clear` (or
