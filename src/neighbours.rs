@@ -572,14 +572,15 @@ impl CellGrid {
         let next = self.next[i];
         if prev == NONE {
             self.head[cell] = next;
+            if next == NONE {
+                // It was the cell's only particle.
+                self.occupancy[cell / 8] &= !(1 << (cell % 8));
+            }
         } else {
             self.next[prev as usize] = next;
         }
         if next != NONE {
             self.links[next as usize].prev = prev;
-        }
-        if self.head[cell] == NONE {
-            self.occupancy[cell / 8] &= !(1 << (cell % 8));
         }
         self.next[i] = NONE;
         self.links[i] = Link::ABSENT;

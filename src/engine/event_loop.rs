@@ -638,14 +638,13 @@ impl<Q: EventQueue> Engine<Q> {
             ),
             NeighbourSearch::Cells => self.cell_exit(ki.pos, ki.vel, self.cell(i)),
         };
-        // Hybrid: a soft particle meets walls and other soft particles
-        // through contact forces, not events.
-        let soft_i = self.is_soft[i];
         let mut mask = self.face_mask[i];
         while mask != 0 {
             let face = mask.trailing_zeros() as u8;
             mask &= mask - 1;
-            if soft_i && self.domain.has_wall(face) {
+            // Hybrid: a soft particle meets walls and other soft particles
+            // through contact forces, not events.
+            if self.is_soft[i] && self.domain.has_wall(face) {
                 continue;
             }
             let axis = (face / 2) as usize;

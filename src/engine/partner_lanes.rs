@@ -6,6 +6,7 @@
 use glam::DVec3;
 
 use super::store::Kinematics;
+use crate::domain::IDENTITY_IMAGE;
 use crate::geometry;
 use crate::neighbours;
 
@@ -44,8 +45,13 @@ pub(super) fn relative(
 ) -> (DVec3, DVec3, f64) {
     let (j, code) = neighbours::unpack(entry);
     let kj = &partners.kin[j as usize];
-    let [x, y, z, _] = partners.shift_lanes[code as usize];
-    let pj = kj.position_at(now) + DVec3::new(x, y, z);
+    let mut pj = kj.position_at(now);
+    // Most partners are not periodic images: no shift to load and add
+    // (adding the zero shift could only turn a −0 into +0).
+    if code != IDENTITY_IMAGE {
+        let [x, y, z, _] = partners.shift_lanes[code as usize];
+        pj += DVec3::new(x, y, z);
+    }
     (ki.pos - pj, ki.vel - kj.vel, ki.radius + kj.radius)
 }
 
