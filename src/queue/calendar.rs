@@ -294,12 +294,7 @@ impl CalendarQueue {
         let pos = slot.pos as usize;
         match slot.loc {
             ABSENT => return false,
-            HEAP => {
-                let slots = &mut self.slots;
-                indexed_heap::remove_at(&mut self.heap, pos, |j, k| {
-                    slots[j as usize].pos = k as u32
-                });
-            }
+            HEAP => self.remove_from_heap(pos),
             OVERFLOW => {
                 self.overflow.swap_remove(pos);
                 if let Some(moved) = self.overflow.get(pos) {
@@ -332,6 +327,13 @@ impl CalendarQueue {
             }
         }
         true
+    }
+
+    /// Takes the heap entry at `pos` out, keeping the slots' positions.
+    #[inline(always)]
+    fn remove_from_heap(&mut self, pos: usize) {
+        let slots = &mut self.slots;
+        indexed_heap::remove_at(&mut self.heap, pos, |j, k| slots[j as usize].pos = k as u32);
     }
 
     /// Refills the empty heap with the next bucket of events. Returns false
@@ -383,13 +385,26 @@ impl CalendarQueue {
         out.extend(self.lines[b].idx[..n].iter().map(entry));
         self.ring_len -= n;
         if n == LINE_CAP
-            && self.spill_len > 0
-            && let Some(spill) = self.spills.remove(&(b as u32))
+            && let Some(spill) = self.take_spill(b)
         {
-            out.extend(spill.iter().map(entry));
-            self.ring_len -= spill.len();
-            self.spill_len -= spill.len();
+            let slots = &self.slots;
+            out.extend(spill.iter().map(|&i| Entry {
+                t: slots[i as usize].t,
+                i,
+            }));
         }
+    }
+
+    /// Removes ring bucket `b`'s spill, if it has one, from the map and
+    /// the counts.
+    fn take_spill(&mut self, b: usize) -> Option<Vec<u32>> {
+        if self.spill_len == 0 {
+            return None;
+        }
+        let spill = self.spills.remove(&(b as u32))?;
+        self.ring_len -= spill.len();
+        self.spill_len -= spill.len();
+        Some(spill)
     }
 
     /// Makes ring bucket `b` (of bucket number `cur`) the current heap,
@@ -407,7 +422,7 @@ impl CalendarQueue {
             slot.pos = k as u32;
             self.heap.push(Entry { t: slot.t, i });
         }
-        if n == LINE_CAP && self.spill_len > 0 {
+        if n == LINE_CAP {
             self.load_spill(b);
         }
         self.stats.loads += 1;
@@ -420,11 +435,9 @@ impl CalendarQueue {
     #[cold]
     #[inline(never)]
     fn load_spill(&mut self, b: usize) {
-        let Some(spill) = self.spills.remove(&(b as u32)) else {
+        let Some(spill) = self.take_spill(b) else {
             return;
         };
-        self.ring_len -= spill.len();
-        self.spill_len -= spill.len();
         for i in spill {
             let slot = &mut self.slots[i as usize];
             slot.loc = HEAP;
@@ -595,10 +608,7 @@ impl EventQueue for CalendarQueue {
             if slot.loc == HEAP {
                 // The common case: the event just processed leaves the
                 // heap for a later bucket.
-                let slots = &mut self.slots;
-                indexed_heap::remove_at(&mut self.heap, slot.pos as usize, |j, k| {
-                    slots[j as usize].pos = k as u32
-                });
+                self.remove_from_heap(slot.pos as usize);
                 self.place(Entry { t, i }, a);
                 return;
             }
