@@ -142,6 +142,8 @@ struct BandFactor {
     band: Vec<f64>,
     /// Diagonal of the matrix (for the relative pivot test).
     diag: Vec<f64>,
+    /// Reciprocals of the factor's diagonal (after factoring).
+    inv_diag: Vec<f64>,
     /// `A_XS`, then (after factoring) `W_X = T_X⁻¹ A_XS`: s × s row-major,
     /// row k = the half's row `len − s + k`, column = separator cell.
     coupling: Vec<f64>,
@@ -174,7 +176,7 @@ impl BandFactor {
     /// coupling into `W_X` and forms `W_Xᵀ W_X`. `Err(k)` for a bad pivot
     /// in row `k` of the half.
     fn factor(&mut self, bw: usize, s: usize) -> Result<(), usize> {
-        BandedCholesky::factor(&mut self.band, &self.diag, bw)?;
+        BandedCholesky::factor(&mut self.band, &self.diag, &mut self.inv_diag, bw)?;
         if s == 0 {
             return Ok(());
         }
@@ -187,7 +189,7 @@ impl BandFactor {
             let col = &self.band[(first + k) * w..(first + k + 1) * w];
             let (done, rest) = coupling.split_at_mut((k + 1) * s);
             let row_k = &mut done[k * s..];
-            let inv = 1.0 / col[0];
+            let inv = self.inv_diag[first + k];
             row_k.iter_mut().for_each(|x| *x *= inv);
             for (row_i, &l) in rest.chunks_exact_mut(s).zip(&col[1..s - k]) {
                 for (x, &y) in row_i.iter_mut().zip(row_k.iter()) {
@@ -326,39 +328,55 @@ impl BandedCholesky {
         cells * (b * b + 4.0 * b + 1.0)
     }
 
-    /// Solves `L y = y` in place (band storage, column-oriented).
-    pub(super) fn forward(band: &[f64], bw: usize, y: &mut [f64]) {
+    /// Solves `L y = y` in place (band storage, column-oriented), with
+    /// `inv_diag` the reciprocals of `L`'s diagonal: each row costs one
+    /// multiply, not a divide, on the chain from row to row.
+    pub(super) fn forward(band: &[f64], inv_diag: &[f64], bw: usize, y: &mut [f64]) {
         let w = bw + 1;
         let len = y.len();
         for k in 0..len {
             let col = &band[k * w..(k + 1) * w];
             let m = w.min(len - k);
-            let yk = y[k] / col[0];
+            let yk = y[k] * inv_diag[k];
             y[k] = yk;
-            for (yi, &l) in y[k + 1..k + m].iter_mut().zip(&col[1..m]) {
-                *yi -= l * yk;
-            }
+            sub_scaled(&mut y[k + 1..k + m], yk, &col[1..m]);
         }
     }
 
     /// Solves `Lᵀ x = y` in place (band storage, row-oriented on `Lᵀ`).
-    pub(super) fn backward(band: &[f64], bw: usize, y: &mut [f64]) {
+    /// The row's newest unknown, `x_{k+1}` (found one row earlier), enters
+    /// last, after the dot product over the older ones: the chain from row
+    /// to row is one multiply, one subtraction and the multiply by the
+    /// pivot's reciprocal instead of the whole sum and a divide.
+    pub(super) fn backward(band: &[f64], inv_diag: &[f64], bw: usize, y: &mut [f64]) {
         let w = bw + 1;
         let len = y.len();
         for k in (0..len).rev() {
             let col = &band[k * w..(k + 1) * w];
             let m = w.min(len - k);
-            let s = dot(&col[1..m], &y[k + 1..k + m]);
-            y[k] = (y[k] - s) / col[0];
+            let rest = if m > 2 {
+                y[k] - dot(&col[2..m], &y[k + 2..k + m])
+            } else {
+                y[k]
+            };
+            let newest = if m > 1 { col[1] * y[k + 1] } else { 0.0 };
+            y[k] = (rest - newest) * inv_diag[k];
         }
     }
 
     /// In-place right-looking band Cholesky on column storage (column `k`
     /// holds rows `k ..= k + b`); `diag` is the diagonal of A for the
-    /// relative pivot test. `Err(k)` for a bad pivot in band row `k`.
-    pub(super) fn factor(band: &mut [f64], diag: &[f64], bw: usize) -> Result<(), usize> {
+    /// relative pivot test; `inv_diag` receives the reciprocals of `L`'s
+    /// diagonal. `Err(k)` for a bad pivot in band row `k`.
+    pub(super) fn factor(
+        band: &mut [f64],
+        diag: &[f64],
+        inv_diag: &mut Vec<f64>,
+        bw: usize,
+    ) -> Result<(), usize> {
         let w = bw + 1;
         let len = diag.len();
+        inv_diag.clear();
         for k in 0..len {
             let (head, tail) = band.split_at_mut((k + 1) * w);
             let ck = &mut head[k * w..];
@@ -370,6 +388,7 @@ impl BandedCholesky {
             let l = s.sqrt();
             ck[0] = l;
             let inv = 1.0 / l;
+            inv_diag.push(inv);
             for v in &mut ck[1..m] {
                 *v *= inv;
             }
@@ -377,10 +396,7 @@ impl BandedCholesky {
             // k + j .. k + m.
             for j in 1..m {
                 let sj = ck[j];
-                let cj = &mut tail[(j - 1) * w..(j - 1) * w + (m - j)];
-                for (c, &v) in cj.iter_mut().zip(&ck[j..m]) {
-                    *c -= sj * v;
-                }
+                sub_scaled(&mut tail[(j - 1) * w..(j - 1) * w + (m - j)], sj, &ck[j..m]);
             }
         }
         Ok(())
@@ -536,8 +552,8 @@ impl BandedCholesky {
         let parallel = self.parallel();
         both(
             parallel,
-            || Self::forward(&ha.band, bw, ya),
-            || Self::forward(&hb.band, bw, yb),
+            || Self::forward(&ha.band, &ha.inv_diag, bw, ya),
+            || Self::forward(&hb.band, &hb.inv_diag, bw, yb),
         );
         let sep = &self.separator;
         let s = sep.size;
@@ -560,8 +576,8 @@ impl BandedCholesky {
         }
         both(
             parallel,
-            || Self::backward(&ha.band, bw, ya),
-            || Self::backward(&hb.band, bw, yb),
+            || Self::backward(&ha.band, &ha.inv_diag, bw, ya),
+            || Self::backward(&hb.band, &hb.inv_diag, bw, yb),
         );
     }
 }
@@ -619,6 +635,40 @@ impl Separator {
 }
 
 /// Runs `fa` and `fb`, on two threads when `parallel`.
+/// `c -= s v` element by element (equal lengths), two at a time in SSE2
+/// registers (every x86-64 CPU has them): the band's columns are short
+/// (b + 1 entries, b ≈ 15 in the planar beds), too short for the
+/// compiler's own vector loop, which ran every element through its scalar
+/// tail. The same multiply and subtraction per element as the scalar loop
+/// (no fused multiply-add): the same bits.
+#[inline(always)]
+fn sub_scaled(c: &mut [f64], s: f64, v: &[f64]) {
+    assert_eq!(c.len(), v.len());
+    let n = c.len();
+    #[cfg(target_arch = "x86_64")]
+    let done = {
+        use std::arch::x86_64::{_mm_loadu_pd, _mm_mul_pd, _mm_set1_pd, _mm_storeu_pd, _mm_sub_pd};
+        let pairs = n / 2;
+        let (cp, vp) = (c.as_mut_ptr(), v.as_ptr());
+        // SAFETY: SSE2 is part of x86-64; entries 2t and 2t + 1 < n of
+        // both slices (equal lengths, asserted above) are read and written.
+        unsafe {
+            let sv = _mm_set1_pd(s);
+            for t in 0..pairs {
+                let x = _mm_loadu_pd(cp.add(2 * t));
+                let y = _mm_loadu_pd(vp.add(2 * t));
+                _mm_storeu_pd(cp.add(2 * t), _mm_sub_pd(x, _mm_mul_pd(sv, y)));
+            }
+        }
+        2 * pairs
+    };
+    #[cfg(not(target_arch = "x86_64"))]
+    let done = 0;
+    for (c1, &v1) in c[done..].iter_mut().zip(&v[done..]) {
+        *c1 -= s * v1;
+    }
+}
+
 fn both<A: Send, B: Send>(
     parallel: bool,
     fa: impl FnOnce() -> A + Send,
