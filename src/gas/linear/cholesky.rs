@@ -918,7 +918,8 @@ mod kernel_tests {
     /// The two- and four-at-a-time kernels give the bits of the plain loop,
     /// and the AVX dot product those of [`super::dot`], at every length
     /// around the band widths (below and above one vector, every tail): a
-    /// fused multiply-add in the SSE2 kernel's tail fails this (tried), and so does another lane order in the AVX dot product (tried).
+    /// fused multiply-add in the SSE2 kernel's tail fails this, and so does
+    /// another order of the AVX dot product's lanes (both tried).
     #[test]
     fn column_kernels_match_the_scalar_loops_bit_for_bit() {
         let mut rng = Xoshiro256PlusPlus::seed_from_u64(38);
