@@ -330,50 +330,76 @@ impl BandedCholesky {
 
     /// Solves `L y = y` in place (band storage, column-oriented), with
     /// `inv_diag` the reciprocals of `L`'s diagonal: each row costs one
-    /// multiply, not a divide, on the chain from row to row. Four entries
-    /// per instruction where the CPU has AVX: the same bits.
+    /// multiply, not a divide, on the chain from row to row.
     pub(super) fn forward(band: &[f64], inv_diag: &[f64], bw: usize, y: &mut [f64]) {
-        #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx") {
-            // SAFETY: the CPU has AVX (checked just above).
-            return unsafe { forward_avx(band, inv_diag, bw, y) };
+        let w = bw + 1;
+        let len = y.len();
+        for k in 0..len {
+            let col = &band[k * w..(k + 1) * w];
+            let m = w.min(len - k);
+            let yk = y[k] * inv_diag[k];
+            y[k] = yk;
+            sub_scaled(&mut y[k + 1..k + m], yk, &col[1..m]);
         }
-        forward_rows(band, inv_diag, bw, y, sub_scaled)
     }
 
     /// Solves `Lᵀ x = y` in place (band storage, row-oriented on `Lᵀ`).
     /// The row's newest unknown, `x_{k+1}` (found one row earlier), enters
     /// last, after the dot product over the older ones: the chain from row
     /// to row is one multiply, one subtraction and the multiply by the
-    /// pivot's reciprocal instead of the whole sum and a divide. Four
-    /// products per instruction where the CPU has AVX: the same bits.
+    /// pivot's reciprocal instead of the whole sum and a divide.
     pub(super) fn backward(band: &[f64], inv_diag: &[f64], bw: usize, y: &mut [f64]) {
-        #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx") {
-            // SAFETY: the CPU has AVX (checked just above).
-            return unsafe { backward_avx(band, inv_diag, bw, y) };
+        let w = bw + 1;
+        let len = y.len();
+        for k in (0..len).rev() {
+            let col = &band[k * w..(k + 1) * w];
+            let m = w.min(len - k);
+            let rest = if m > 2 {
+                y[k] - dot(&col[2..m], &y[k + 2..k + m])
+            } else {
+                y[k]
+            };
+            let newest = if m > 1 { col[1] * y[k + 1] } else { 0.0 };
+            y[k] = (rest - newest) * inv_diag[k];
         }
-        backward_rows(band, inv_diag, bw, y, dot)
     }
 
     /// In-place right-looking band Cholesky on column storage (column `k`
     /// holds rows `k ..= k + b`); `diag` is the diagonal of A for the
     /// relative pivot test; `inv_diag` receives the reciprocals of `L`'s
-    /// diagonal. `Err(k)` for a bad pivot in band row `k`. The column
-    /// updates run four at a time where the CPU has AVX, two at a time
-    /// otherwise: the same bits.
+    /// diagonal. `Err(k)` for a bad pivot in band row `k`.
     pub(super) fn factor(
         band: &mut [f64],
         diag: &[f64],
         inv_diag: &mut Vec<f64>,
         bw: usize,
     ) -> Result<(), usize> {
-        #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx") {
-            // SAFETY: the CPU has AVX (checked just above).
-            return unsafe { factor_avx(band, diag, inv_diag, bw) };
+        let w = bw + 1;
+        let len = diag.len();
+        inv_diag.clear();
+        for k in 0..len {
+            let (head, tail) = band.split_at_mut((k + 1) * w);
+            let ck = &mut head[k * w..];
+            let m = w.min(len - k);
+            let s = ck[0];
+            if s.is_nan() || s <= BAND_PIVOT_TOL * diag[k] {
+                return Err(k);
+            }
+            let l = s.sqrt();
+            ck[0] = l;
+            let inv = 1.0 / l;
+            inv_diag.push(inv);
+            for v in &mut ck[1..m] {
+                *v *= inv;
+            }
+            // Rank-1 update of the trailing triangle: column k + j, rows
+            // k + j .. k + m.
+            for j in 1..m {
+                let sj = ck[j];
+                sub_scaled(&mut tail[(j - 1) * w..(j - 1) * w + (m - j)], sj, &ck[j..m]);
+            }
         }
-        factor_columns(band, diag, inv_diag, bw, sub_scaled)
+        Ok(())
     }
 
     /// Renumbers `a` (the ordering with the smallest bandwidth for its
@@ -609,177 +635,6 @@ impl Separator {
 }
 
 /// Runs `fa` and `fb`, on two threads when `parallel`.
-/// [`BandedCholesky::forward`] compiled for AVX.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx")]
-fn forward_avx(band: &[f64], inv_diag: &[f64], bw: usize, y: &mut [f64]) {
-    forward_rows(band, inv_diag, bw, y, |c, s, v| sub_scaled_avx(c, s, v))
-}
-
-/// [`BandedCholesky::backward`] compiled for AVX.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx")]
-fn backward_avx(band: &[f64], inv_diag: &[f64], bw: usize, y: &mut [f64]) {
-    backward_rows(band, inv_diag, bw, y, |a, b| dot_avx(a, b))
-}
-
-/// The forward substitution of [`BandedCholesky::forward`], with
-/// `update(c, s, v)` doing `c -= s v`.
-#[inline(always)]
-fn forward_rows(
-    band: &[f64],
-    inv_diag: &[f64],
-    bw: usize,
-    y: &mut [f64],
-    update: impl Fn(&mut [f64], f64, &[f64]),
-) {
-    let w = bw + 1;
-    let len = y.len();
-    for k in 0..len {
-        let col = &band[k * w..(k + 1) * w];
-        let m = w.min(len - k);
-        let yk = y[k] * inv_diag[k];
-        y[k] = yk;
-        update(&mut y[k + 1..k + m], yk, &col[1..m]);
-    }
-}
-
-/// The back substitution of [`BandedCholesky::backward`], with `dot` the
-/// dot product of [`super::dot`]'s summation order.
-#[inline(always)]
-fn backward_rows(
-    band: &[f64],
-    inv_diag: &[f64],
-    bw: usize,
-    y: &mut [f64],
-    dot: impl Fn(&[f64], &[f64]) -> f64,
-) {
-    let w = bw + 1;
-    let len = y.len();
-    for k in (0..len).rev() {
-        let col = &band[k * w..(k + 1) * w];
-        let m = w.min(len - k);
-        let rest = if m > 2 {
-            y[k] - dot(&col[2..m], &y[k + 2..k + m])
-        } else {
-            y[k]
-        };
-        let newest = if m > 1 { col[1] * y[k + 1] } else { 0.0 };
-        y[k] = (rest - newest) * inv_diag[k];
-    }
-}
-
-/// [`super::dot`] with its four partial sums in one AVX register: lane `l`
-/// adds the products `4 t + l` in the same order, the lanes are summed as
-/// `(s0 + s1) + (s2 + s3)` and the tail added one at a time: the same bits.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx")]
-#[inline]
-fn dot_avx(a: &[f64], b: &[f64]) -> f64 {
-    use std::arch::x86_64::{
-        _mm256_add_pd, _mm256_loadu_pd, _mm256_mul_pd, _mm256_setzero_pd, _mm256_storeu_pd,
-    };
-    assert_eq!(a.len(), b.len());
-    let quads = a.len() / 4;
-    let mut acc = _mm256_setzero_pd();
-    for t in 0..quads {
-        // SAFETY: entries 4t .. 4t + 3 < len of both slices (equal
-        // lengths, asserted above) are read.
-        unsafe {
-            let x = _mm256_loadu_pd(a.as_ptr().add(4 * t));
-            let y = _mm256_loadu_pd(b.as_ptr().add(4 * t));
-            acc = _mm256_add_pd(acc, _mm256_mul_pd(x, y));
-        }
-    }
-    let mut lanes = [0.0; 4];
-    // SAFETY: `lanes` holds four f64.
-    unsafe { _mm256_storeu_pd(lanes.as_mut_ptr(), acc) };
-    let mut s = (lanes[0] + lanes[1]) + (lanes[2] + lanes[3]);
-    for (x, y) in a[4 * quads..].iter().zip(&b[4 * quads..]) {
-        s += x * y;
-    }
-    s
-}
-
-/// [`BandedCholesky::factor`] compiled for AVX, its column updates four
-/// entries per instruction.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx")]
-fn factor_avx(
-    band: &mut [f64],
-    diag: &[f64],
-    inv_diag: &mut Vec<f64>,
-    bw: usize,
-) -> Result<(), usize> {
-    factor_columns(band, diag, inv_diag, bw, |c, s, v| sub_scaled_avx(c, s, v))
-}
-
-/// The factorisation of [`BandedCholesky::factor`], with `update(c, s, v)`
-/// doing `c -= s v`.
-#[inline(always)]
-fn factor_columns(
-    band: &mut [f64],
-    diag: &[f64],
-    inv_diag: &mut Vec<f64>,
-    bw: usize,
-    update: impl Fn(&mut [f64], f64, &[f64]),
-) -> Result<(), usize> {
-    let w = bw + 1;
-    let len = diag.len();
-    inv_diag.clear();
-    for k in 0..len {
-        let (head, tail) = band.split_at_mut((k + 1) * w);
-        let ck = &mut head[k * w..];
-        let m = w.min(len - k);
-        let s = ck[0];
-        if s.is_nan() || s <= BAND_PIVOT_TOL * diag[k] {
-            return Err(k);
-        }
-        let l = s.sqrt();
-        ck[0] = l;
-        let inv = 1.0 / l;
-        inv_diag.push(inv);
-        for v in &mut ck[1..m] {
-            *v *= inv;
-        }
-        // Rank-1 update of the trailing triangle: column k + j, rows
-        // k + j .. k + m.
-        for j in 1..m {
-            let sj = ck[j];
-            update(&mut tail[(j - 1) * w..(j - 1) * w + (m - j)], sj, &ck[j..m]);
-        }
-    }
-    Ok(())
-}
-
-/// [`sub_scaled`] four at a time in AVX registers, then one at a time:
-/// the same multiply and subtraction per element, the same bits.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx")]
-#[inline]
-fn sub_scaled_avx(c: &mut [f64], s: f64, v: &[f64]) {
-    use std::arch::x86_64::{
-        _mm256_loadu_pd, _mm256_mul_pd, _mm256_set1_pd, _mm256_storeu_pd, _mm256_sub_pd,
-    };
-    assert_eq!(c.len(), v.len());
-    let n = c.len();
-    let quads = n / 4;
-    let (cp, vp) = (c.as_mut_ptr(), v.as_ptr());
-    let sv = _mm256_set1_pd(s);
-    for t in 0..quads {
-        // SAFETY: entries 4t .. 4t + 3 < n of both slices (equal lengths,
-        // asserted above) are read and written.
-        unsafe {
-            let x = _mm256_loadu_pd(cp.add(4 * t));
-            let y = _mm256_loadu_pd(vp.add(4 * t));
-            _mm256_storeu_pd(cp.add(4 * t), _mm256_sub_pd(x, _mm256_mul_pd(sv, y)));
-        }
-    }
-    for (c1, &v1) in c[4 * quads..].iter_mut().zip(&v[4 * quads..]) {
-        *c1 -= s * v1;
-    }
-}
-
 /// `c -= s v` element by element (equal lengths), two at a time in SSE2
 /// registers (every x86-64 CPU has them): the band's columns are short
 /// (b + 1 entries, b ≈ 15 in the planar beds), too short for the
@@ -915,13 +770,11 @@ mod kernel_tests {
     use rand::{RngExt, SeedableRng};
     use rand_xoshiro::Xoshiro256PlusPlus;
 
-    /// The two- and four-at-a-time kernels give the bits of the plain loop,
-    /// and the AVX dot product those of [`super::dot`], at every length
-    /// around the band widths (below and above one vector, every tail): a
-    /// fused multiply-add in the SSE2 kernel's tail fails this, and so does
-    /// another order of the AVX dot product's lanes (both tried).
+    /// The two-at-a-time kernel gives the bits of the plain loop at every
+    /// length around the band widths (odd and even, below and above one
+    /// pair): a fused multiply-add in its place fails this (tried).
     #[test]
-    fn column_kernels_match_the_scalar_loops_bit_for_bit() {
+    fn sub_scaled_matches_the_scalar_loop_bit_for_bit() {
         let mut rng = Xoshiro256PlusPlus::seed_from_u64(38);
         for len in 0..20 {
             for _ in 0..50 {
@@ -933,20 +786,6 @@ mod kernel_tests {
                 let plain: Vec<f64> = c0.iter().zip(&v).map(|(&c, &x)| c - s * x).collect();
                 let bits = |x: &[f64]| x.iter().map(|y| y.to_bits()).collect::<Vec<_>>();
                 assert_eq!(bits(&fast), bits(&plain), "length {len}");
-                #[cfg(target_arch = "x86_64")]
-                if std::arch::is_x86_feature_detected!("avx") {
-                    let mut wide = c0.clone();
-                    // SAFETY: the CPU has AVX (checked just above).
-                    unsafe { super::sub_scaled_avx(&mut wide, s, &v) };
-                    assert_eq!(bits(&wide), bits(&plain), "AVX, length {len}");
-                    // SAFETY: as above.
-                    let d = unsafe { super::dot_avx(&c0, &v) };
-                    assert_eq!(
-                        d.to_bits(),
-                        super::dot(&c0, &v).to_bits(),
-                        "AVX dot, length {len}"
-                    );
-                }
             }
         }
     }
