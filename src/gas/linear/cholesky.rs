@@ -634,7 +634,6 @@ impl Separator {
     }
 }
 
-/// Runs `fa` and `fb`, on two threads when `parallel`.
 /// `c -= s v` element by element (equal lengths), two at a time in SSE2
 /// registers (every x86-64 CPU has them): the band's columns are short
 /// (b + 1 entries, b ≈ 15 in the planar beds), too short for the
@@ -669,6 +668,7 @@ fn sub_scaled(c: &mut [f64], s: f64, v: &[f64]) {
     }
 }
 
+/// Runs `fa` and `fb`, on two threads when `parallel`.
 fn both<A: Send, B: Send>(
     parallel: bool,
     fa: impl FnOnce() -> A + Send,
