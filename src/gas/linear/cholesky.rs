@@ -192,9 +192,7 @@ impl BandFactor {
             let inv = self.inv_diag[first + k];
             row_k.iter_mut().for_each(|x| *x *= inv);
             for (row_i, &l) in rest.chunks_exact_mut(s).zip(&col[1..s - k]) {
-                for (x, &y) in row_i.iter_mut().zip(row_k.iter()) {
-                    *x -= l * y;
-                }
+                sub_scaled(row_i, l, row_k);
             }
         }
         // Wᵀ W, one row of W at a time (contiguous).
@@ -562,9 +560,7 @@ impl BandedCholesky {
             let couplings = [&ha.coupling, &hb.coupling];
             for (coupling, tail) in couplings.iter().zip(&tails) {
                 for (row, &t) in coupling.chunks_exact(s).zip(tail.iter()) {
-                    for (x, &wv) in ys.iter_mut().zip(row) {
-                        *x -= wv * t;
-                    }
+                    sub_scaled(ys, t, row);
                 }
             }
             sep.solve(ys);
@@ -772,7 +768,7 @@ mod kernel_tests {
 
     /// The two-at-a-time kernel gives the bits of the plain loop at every
     /// length around the band widths (odd and even, below and above one
-    /// pair): a fused multiply-add in its place fails this (tried).
+    /// pair): a fused multiply-add in its scalar tail fails this (tried).
     #[test]
     fn sub_scaled_matches_the_scalar_loop_bit_for_bit() {
         let mut rng = Xoshiro256PlusPlus::seed_from_u64(38);
