@@ -21,7 +21,9 @@ use rand_xoshiro::Xoshiro256PlusPlus;
 
 use crate::collision::ContactParams;
 use crate::domain::{AxisBoundary, Domain};
-use crate::engine::{Engine, EngineConfig, NeighbourSearch, Prefetch, auto_neighbour_search};
+use crate::engine::{
+    Engine, EngineConfig, EngineError, NeighbourSearch, Prefetch, auto_neighbour_search,
+};
 use crate::materials::MaterialTable;
 use crate::particles::NewParticle;
 use crate::queue::{CalendarQueue, EventQueue, IndexedHeap, QueueKind, ReferenceQueue};
@@ -559,8 +561,114 @@ pub fn solid_fraction(positions: &[DVec3], side: f64) -> f64 {
     solid_bonds.iter().filter(|&&b| b >= 7).count() as f64 / n as f64
 }
 
-/// Runs the benchmark with the queue chosen in `opts`.
-pub fn run(opts: &BenchOptions) -> BenchResult {
+/// The lowest packing fraction the bench takes: the cell crossings per
+/// collision grow as 1/φ (about 120 at 10⁻³), so below it a run of a few
+/// collisions per particle is mostly crossings and may take hours.
+pub const MIN_PHI: f64 = 1e-3;
+
+/// The highest packing fraction: the fluid branch ends near 0.55.
+pub const MAX_PHI: f64 = 0.55;
+
+/// The shortest flow step (mean free times): every flow step re-predicts
+/// every particle, so at 10⁻² the re-predictions outnumber the collisions
+/// a hundred times over.
+pub const MIN_FLOW_STEP: f64 = 1e-2;
+
+/// The most collisions per particle to equilibrate or measure.
+pub const MAX_COLLISIONS_PER_PARTICLE: f64 = 1e6;
+
+/// The thinnest list skin (diameters): a thinner shell rebuilds its lists
+/// at nearly every event.
+pub const MIN_SKIN: f64 = 1e-2;
+
+/// Peak memory the bench may need per particle (bytes), with a margin: its
+/// peak resident set at N = 10⁶ was 231–291 bytes a particle
+/// (results/benchmarks.md, thirty-seventh session).
+pub const BYTES_PER_PARTICLE: f64 = 400.0;
+
+/// The side of the bench's periodic cube (diameters) for `n` (rounded to
+/// the FCC count) and `phi`: the engine needs more than 4 radii.
+pub fn box_side_for(n: usize, phi: f64) -> f64 {
+    box_side(fcc_count(n), phi)
+}
+
+/// The smallest `--n` whose cube at `phi` is longer than 4 radii.
+fn min_particles(phi: f64) -> usize {
+    (1..)
+        .map(|k| 4 * k * k * k)
+        .find(|&n| box_side(n, phi) > 2.0)
+        .expect("a large enough lattice exists")
+}
+
+/// Checks the options a user gave: `Err` names the option and its range.
+pub fn check_options(opts: &BenchOptions) -> Result<(), String> {
+    if !(opts.phi >= MIN_PHI && opts.phi < MAX_PHI) {
+        return Err(format!(
+            "--phi must be in [{MIN_PHI}, {MAX_PHI}): the fluid branch (got {:?})",
+            opts.phi
+        ));
+    }
+    let counts = [
+        ("--equilibrate", opts.equilibrate),
+        ("--measure", opts.measure),
+    ];
+    for (name, c) in counts {
+        if !(c >= 0.0 && c <= MAX_COLLISIONS_PER_PARTICLE) {
+            return Err(format!(
+                "{name} must be in [0, {MAX_COLLISIONS_PER_PARTICLE:e}] collisions per particle (got {c:?})"
+            ));
+        }
+    }
+    if opts.measure <= 0.0 {
+        return Err("--measure must be > 0 collisions per particle".to_string());
+    }
+    if let Some(f) = opts.flow_step
+        && !(f >= MIN_FLOW_STEP && f.is_finite())
+    {
+        return Err(format!(
+            "--flow-step must be at least {MIN_FLOW_STEP} mean free times and finite (got {f:?})"
+        ));
+    }
+    if !(opts.skin >= MIN_SKIN && opts.skin <= 2.0) {
+        return Err(format!(
+            "--skin must be in [{MIN_SKIN}, 2] diameters (got {:?})",
+            opts.skin
+        ));
+    }
+    if !(opts.reorder_every >= 0.0 && opts.reorder_every.is_finite()) {
+        return Err(format!(
+            "--reorder-every must be >= 0 collisions per particle and finite (got {:?})",
+            opts.reorder_every
+        ));
+    }
+    // Memory first, from the count as asked (rounding a huge --n to the
+    // FCC count could overflow).
+    let bytes = opts.n as f64 * BYTES_PER_PARTICLE;
+    let memory = crate::scenario::limits::physical_memory().unwrap_or(f64::INFINITY);
+    if bytes > memory.min(1e18) {
+        return Err(format!(
+            "--n {}: the bench would need about {} of memory, more than this machine's {}",
+            opts.n,
+            crate::scenario::limits::gigabytes(bytes),
+            crate::scenario::limits::gigabytes(memory)
+        ));
+    }
+    let min_n = min_particles(opts.phi);
+    if fcc_count(opts.n) < min_n {
+        return Err(format!(
+            "--n {} rounds to {} particles, whose periodic cube at phi = {} is {:.2} diameters long: it must exceed 2; use --n >= {min_n}",
+            opts.n,
+            fcc_count(opts.n),
+            opts.phi,
+            box_side_for(opts.n, opts.phi)
+        ));
+    }
+    Ok(())
+}
+
+/// Runs the benchmark with the queue chosen in `opts` (check them first
+/// with [`check_options`]); `Err` where the engine refuses the start.
+pub fn run(opts: &BenchOptions) -> Result<BenchResult, EngineError> {
     match opts.queue {
         QueueKind::IndexedHeap => run_with::<IndexedHeap>(opts),
         QueueKind::Calendar => run_with::<CalendarQueue>(opts),
@@ -568,7 +676,7 @@ pub fn run(opts: &BenchOptions) -> BenchResult {
     }
 }
 
-fn run_with<Q: EventQueue>(opts: &BenchOptions) -> BenchResult {
+fn run_with<Q: EventQueue>(opts: &BenchOptions) -> Result<BenchResult, EngineError> {
     let count = fcc_count(opts.n);
     let side = box_side(count, opts.phi);
     let initial = match opts.start {
@@ -599,8 +707,7 @@ fn run_with<Q: EventQueue>(opts: &BenchOptions) -> BenchResult {
             let (domain, lattice) = fcc_lattice(opts.n, opts.phi, opts.seed);
             Engine::with_capacity_for_radius(domain, unit_spheres(), config, 0.5, lattice)
         }
-    }
-    .expect("start is overlap-free");
+    }?;
     let n = engine.len();
     let rho = 6.0 * opts.phi / std::f64::consts::PI;
     let mean_free_time = mean_free_time(opts.phi);
@@ -658,7 +765,7 @@ fn run_with<Q: EventQueue>(opts: &BenchOptions) -> BenchResult {
     let positions = engine.into_positions();
     let solid_fraction = solid_fraction(&positions, side);
     let (_, peak_rss) = resident_set_bytes();
-    BenchResult {
+    Ok(BenchResult {
         n,
         phi: opts.phi,
         queue: opts.queue,
@@ -686,7 +793,7 @@ fn run_with<Q: EventQueue>(opts: &BenchOptions) -> BenchResult {
         stale_events_per_collision: (counters.stale_events - start.stale_events) as f64
             / collisions as f64,
         energy_drift: (energy_end - energy_start) / energy_start,
-    }
+    })
 }
 
 #[cfg(test)]

@@ -358,29 +358,9 @@ fn validate_mode(quick: bool) -> edpm::validate::Mode {
 /// `edpm bench`: checks the options, runs the benchmark and prints its
 /// result as one JSON line (with a warning when the fluid crystallised).
 fn bench_cli(opts: &BenchOptions) -> anyhow::Result<()> {
-    let checks = [
-        (opts.n >= 4, "--n must be at least 4"),
-        (
-            opts.phi > 0.0 && opts.phi < 0.55,
-            "--phi must be in (0, 0.55): the fluid branch",
-        ),
-        (
-            opts.equilibrate >= 0.0 && opts.measure > 0.0,
-            "--equilibrate must be >= 0 and --measure > 0",
-        ),
-        (
-            opts.flow_step.is_none_or(|f| f > 0.0),
-            "--flow-step must be > 0",
-        ),
-        (
-            opts.skin > 0.0 && opts.skin <= 2.0,
-            "--skin must be in (0, 2]",
-        ),
-    ];
-    if let Some((_, msg)) = checks.iter().find(|(ok, _)| !ok) {
-        return Err(anyhow::anyhow!("{msg}"));
-    }
-    let r = bench::run(opts);
+    bench::check_options(opts).map_err(|msg| anyhow::anyhow!("{msg}"))?;
+    let r = bench::run(opts)
+        .map_err(|e| anyhow::anyhow!("bench: the engine refused the start: {e}"))?;
     if r.peak_rss_bytes.is_none() {
         eprintln!("edpm: peak resident set size: not available (no /proc/self/status)");
     }

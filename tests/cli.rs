@@ -513,6 +513,106 @@ fn bench_prints_one_json_line_and_rejects_a_solid_packing() {
     assert!(o.stdout.is_empty());
 }
 
+/// Soft contacts far softer than the impacts: a run whose contacts
+/// overlap by more than half their contact distance stops with an error
+/// naming the soft keys (before, it completed with particles passing
+/// through each other); one that overlapped by more than 10 % completes
+/// with a warning in summary.json. The default spring targets 1 % at
+/// 1 m/s; a granular temperature of 100 m²/s² gives 10 m/s impacts
+/// (measured 29 % overlap), a spring of 1e-12 N/m lets spheres at 1 m/s
+/// pass most of the way through each other.
+#[test]
+fn soft_contacts_that_interpenetrate_stop_or_warn() {
+    let dir = fresh_dir("soft-overlap");
+    let o = run_into(
+        "scenarios/box-walls.toml",
+        &dir,
+        &[
+            "--t-end",
+            "0.05",
+            "--set",
+            "engine.model=soft",
+            "--set",
+            "engine.soft.k_n=1e-12",
+            "--set",
+            "domain.gravity=[0,0,0]",
+            "--set",
+            "particles.0.temperature=1",
+        ],
+    );
+    assert_clean_failure(&o, &["soft contacts overlap by", "engine.soft.k_n"]);
+    let o = run_into(
+        "scenarios/box-walls.toml",
+        &dir,
+        &[
+            "--force",
+            "--t-end",
+            "0.002",
+            "--set",
+            "engine.model=soft",
+            "--set",
+            "particles.0.temperature=100",
+        ],
+    );
+    assert_success(&o);
+    let warnings = summary(&dir)["warnings"].to_string();
+    assert!(
+        warnings.contains("soft contacts overlapped by up to"),
+        "{warnings}"
+    );
+    // The default spring at the box's own speeds: no warning.
+    let o = run_into(
+        "scenarios/box-walls.toml",
+        &dir,
+        &["--force", "--t-end", "0.002", "--set", "engine.model=soft"],
+    );
+    assert_success(&o);
+    let warnings = summary(&dir)["warnings"].to_string();
+    assert!(!warnings.contains("soft contacts"), "{warnings}");
+}
+
+/// Every `edpm bench` option outside its range fails at once, naming the
+/// option and the range, instead of panicking in the engine (a cube too
+/// small for its particles), aborting on an allocation (a huge `--n`) or
+/// running for hours (a dilute fluid is mostly cell crossings; a tiny flow
+/// step re-predicts everyone at nearly every event). Each case must fail
+/// within the test's own run time: none builds an engine.
+#[test]
+fn bench_refuses_every_option_outside_its_range() {
+    let cases: &[(&[&str], &[&str])] = &[
+        (&["--n", "4"], &["--n 4", "use --n >= 32"]),
+        (
+            &["--n", "10", "--start", "compressed"],
+            &["--n 10", "use --n >= 32"],
+        ),
+        (&["--n", "4", "--phi", "0.5"], &["--n 4", "use --n >="]),
+        (&["--n", "1000000000000"], &["--n 1000000000000", "memory"]),
+        (&["--n", "18446744073709551615"], &["memory"]),
+        (
+            &["--n", "500", "--phi", "1e-9"],
+            &["--phi", "[0.001, 0.55)"],
+        ),
+        (&["--phi", "NaN"], &["--phi", "NaN"]),
+        (&["--flow-step", "1e-12"], &["--flow-step", "0.01"]),
+        (&["--flow-step", "inf"], &["--flow-step"]),
+        (&["--skin", "1e-9"], &["--skin", "[0.01, 2]"]),
+        (&["--measure", "1e300"], &["--measure", "1e6"]),
+        (&["--measure", "0"], &["--measure", "> 0"]),
+        (&["--equilibrate=-1"], &["--equilibrate"]),
+        (&["--reorder-every", "NaN"], &["--reorder-every"]),
+    ];
+    for (args, needles) in cases {
+        let mut all = vec!["bench"];
+        all.extend_from_slice(args);
+        let o = edpm(&all);
+        assert_clean_failure(&o, needles);
+        assert!(o.stdout.is_empty(), "{args:?}");
+    }
+    // The smallest cube the message names runs.
+    let o = edpm(&["bench", "--n", "32", "--equilibrate", "1", "--measure", "1"]);
+    assert_success(&o);
+}
+
 /// `edpm sweep` runs the Cartesian product of the listed values, one run
 /// per point, and each point is the same run as `edpm run` with the same
 /// overrides (bit-identical summary figures, whatever the job count). A
@@ -797,7 +897,17 @@ fn batch_runs_print_progress_lines_on_stderr() {
         "--progress-interval",
         "0",
     ]);
-    assert_clean_failure(&bad, &["--progress-interval", "> 0 s"]);
+    assert_clean_failure(&bad, &["--progress-interval", "(0, 1e9] s"]);
+    // Beyond what a wall-clock duration holds: refused, not a panic.
+    for huge in ["2e19", "1e300", "inf", "NaN"] {
+        let bad = edpm(&[
+            "run",
+            "scenarios/box-walls.toml",
+            "--progress-interval",
+            huge,
+        ]);
+        assert_clean_failure(&bad, &["--progress-interval", "(0, 1e9] s"]);
+    }
 }
 
 #[test]

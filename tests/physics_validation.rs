@@ -14,7 +14,7 @@ use edpm::validate::homogeneous::{
 
 /// The equation-of-state measurement of `edpm validate eos` (full size).
 fn pressure_at(phi: f64) -> bench::BenchResult {
-    bench::run(&eos_options(phi, 2048, 400.0))
+    bench::run(&eos_options(phi, 2048, 400.0)).expect("valid bench options")
 }
 
 /// The pressure of an elastic hard-sphere fluid within 1 % of
@@ -54,7 +54,7 @@ fn collision_virial_pressure_matches_carnahan_starling() {
 
 #[test]
 fn energy_drift_over_a_million_collisions_is_below_1e_10() {
-    let r = bench::run(&energy_conservation_options(4000, 250.0));
+    let r = bench::run(&energy_conservation_options(4000, 250.0)).expect("valid bench options");
     assert!(
         r.collisions >= 1_000_000,
         "only {} collisions",
@@ -83,7 +83,8 @@ fn per_particle_kicks_to_a_horizon_keep_the_free_fluid() {
             flow_step: Some(0.5),
             kicks: bench::FlowKicks::PerParticle,
             ..eos_options(phi, 2048, 200.0)
-        });
+        })
+        .expect("valid bench options");
         assert_eq!(r.kicks, bench::FlowKicks::PerParticle);
         // As free flight. Carnahan–Starling is 0.2-0.3 % low at φ = 0.4,
         // and 4e5 collisions give about 0.3 % noise.
@@ -101,7 +102,7 @@ fn bench_at_phi_0_5_measures_the_fluid_not_the_fcc_crystal() {
         seed: 5,
         ..Default::default()
     };
-    let r = bench::run(&opts);
+    let r = bench::run(&opts).expect("valid bench options");
     assert_eq!(r.start, bench::Start::Compressed);
     // Carnahan-Starling gives beta P sigma^3 = 12.41 at phi = 0.5; the FCC
     // crystal at the same density gives 9.1 (26 % lower). Simulation data
@@ -130,7 +131,8 @@ fn bench_at_phi_0_5_measures_the_fluid_not_the_fcc_crystal() {
         start: bench::Start::Lattice,
         measure: 10.0,
         ..opts
-    });
+    })
+    .expect("valid bench options");
     assert!(
         lattice.solid_fraction > 0.5,
         "lattice solid fraction {}",

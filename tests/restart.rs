@@ -404,6 +404,100 @@ fn damaged_or_mismatched_restart_files_are_refused_in_plain_words() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// A restart file whose checksums are right but whose contents are not
+/// what edpm writes (a forged or buggy file) is refused naming the
+/// particle and the field, before anything runs: not a panic on a material
+/// index, not a run that "completes" at once from a step count beyond
+/// `t_end`, not a run whose bad particle surfaces later as an engine fault.
+#[test]
+fn restart_files_with_impossible_contents_are_refused_naming_the_field() {
+    let dir = fresh_dir("forged");
+    let run = dir.join("run");
+    let box_walls = "scenarios/box-walls.toml";
+    run_ok(
+        box_walls,
+        &run,
+        &["--t-end", "0.02", "--set", "output.restart_interval=0.01"],
+    );
+    let good = read_restart(&run.join("restart.bin"));
+    let header = container::read_header(&RESTART_KIND, &run.join("restart.bin")).unwrap();
+    let forged = |name: &str, change: &dyn Fn(&mut RestartFile)| {
+        let mut file = good.clone();
+        change(&mut file);
+        let p = dir.join(name);
+        let bytes = container::encode(&RESTART_KIND, header.run_id, &file).unwrap();
+        std::fs::write(&p, bytes).unwrap();
+        let out = dir.join("out");
+        let args = [
+            "run",
+            box_walls,
+            "--quiet",
+            "--force",
+            "--out",
+            s(&out),
+            "--t-end",
+            "0.02",
+            "--restart",
+            s(&p),
+        ];
+        let e = error_line(&edpm(&args));
+        let prefix = format!("{}: ", p.display());
+        assert!(e.starts_with(&prefix), "{e}");
+        e[prefix.len()..].to_string()
+    };
+    let id0 = good.particles[0].id;
+    let cases: Vec<(&str, Box<dyn Fn(&mut RestartFile)>, String)> = vec![
+        (
+            "material",
+            Box::new(|f| f.particles[0].material = 999),
+            format!("particle {id0} has material 999, but this scenario has 2 materials"),
+        ),
+        (
+            "inv_mass",
+            Box::new(|f| f.particles[0].inv_mass = -1.0),
+            format!("particle {id0} has inverse mass -1 1/kg: it must be finite and > 0"),
+        ),
+        (
+            "last_collision",
+            Box::new(|f| f.particles[0].last_collision = f64::NAN),
+            format!("particle {id0}: its last collision at engine clock NaN s is not in the past"),
+        ),
+        (
+            "inactive",
+            Box::new(|f| f.particles[0].active = false),
+            "slot 0 holds no particle but is not listed as free".to_string(),
+        ),
+        (
+            "duplicate id",
+            Box::new(move |f| f.particles[1].id = id0),
+            format!("particle id {id0} is held by two slots"),
+        ),
+        (
+            "next id",
+            Box::new(|f| f.engine.next_id = 0),
+            "particle id 499 is not below the next id to hand out (0)".to_string(),
+        ),
+        (
+            "outside",
+            Box::new(|f| f.particles[0].pos.x = 5.0),
+            format!("particle {id0} at [5, "),
+        ),
+        (
+            "step",
+            Box::new(|f| f.step = 1 << 63),
+            format!(
+                "the restart file counts {} flow steps done at t = ",
+                1u64 << 63
+            ),
+        ),
+    ];
+    for (name, change, expected) in &cases {
+        let e = forged(&format!("{}.bin", name.replace(' ', "-")), change.as_ref());
+        assert!(e.starts_with(expected.as_str()), "{name}: {e}");
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 /// Runs `python3 tools/edpm_data.py FILE` and returns its JSON line.
 fn python_summary(path: &Path) -> serde_json::Value {
     let o = Command::new("python3")

@@ -631,18 +631,50 @@ fn time_engine_output_rules() {
     expect_field(
         with(&["engine.skin=3"]),
         "engine.skin",
-        "must be \"auto\" or a number in (0, 2], got 3.0",
+        "must be \"auto\" or a number in [0.01, 2], got 3.0",
     );
     expect_field(
         with(&["engine.skin=true"]),
         "engine.skin",
-        "must be \"auto\" or a number in (0, 2], got true",
+        "must be \"auto\" or a number in [0.01, 2], got true",
     );
     expect_field(
         with(&["engine.skin=thick"]),
         "engine.skin",
-        "must be \"auto\" or a number in (0, 2], got \"thick\"",
+        "must be \"auto\" or a number in [0.01, 2], got \"thick\"",
     );
+    // Thinner than 1 % of a diameter: lists rebuilt at nearly every event.
+    expect_field(
+        with(&["engine.skin=1e-8"]),
+        "engine.skin",
+        "must be \"auto\" or a number in [0.01, 2], got 1e-8",
+    );
+    // Soft springs whose time step fits the flow step more than 1e6 times
+    // (hours for a few steps), or that give no finite contact time, are
+    // refused at validation, naming the keys, not when the run starts.
+    expect_field(
+        with(&["engine.model=soft", "engine.soft.k_n=1e15"]),
+        "engine.soft",
+        "soft steps per flow step of 0.0001 s; at most 1e6 are allowed",
+    );
+    expect_field(
+        with(&["engine.model=hybrid", "engine.soft.max_overlap=1e-9"]),
+        "engine.soft",
+        "the spring from engine.soft.max_overlap and impact_speed (k_n = ",
+    );
+    expect_field(
+        with(&["engine.model=soft", "collisions.default.e_n=5e-324"]),
+        "engine.soft",
+        "a larger collisions e_n",
+    );
+    expect_field(
+        with(&["engine.model=soft", "engine.soft.impact_speed=1e-300"]),
+        "engine.soft",
+        "is not usable for these particles: contact time = inf must be finite and > 0",
+    );
+    // The shipped soft settings pass (tests/soft_contact.rs runs them).
+    with(&["engine.model=soft"]).unwrap();
+    with(&["engine.model=soft", "engine.soft.k_n=1e4"]).unwrap();
     // A number fixes the skin; "auto" lets it grow from 0.2.
     let fixed = with(&["engine.skin=0.3"]).unwrap();
     assert_eq!(

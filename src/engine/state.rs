@@ -329,6 +329,58 @@ impl<Q: EventQueue> Engine<Q> {
     /// `state` ([`Engine::export_state`]); the configuration, domain and
     /// materials stay those of the build. `Err` with the reason when the
     /// state cannot belong to this engine.
+    /// The slot table's bookkeeping in `state`: the inactive slots are
+    /// exactly the free ones, each listed once; active particles have
+    /// distinct ids, all below the next id to hand out; particles waiting
+    /// for re-insertion fit this scenario's materials and grid.
+    fn check_slot_bookkeeping(&self, state: &EngineState) -> Result<(), String> {
+        let n = state.slots.len();
+        let mut free = vec![false; n];
+        for &f in &state.free_slots {
+            let f = f as usize;
+            if f >= n || free[f] || state.slots[f].active {
+                return Err(format!(
+                    "the free slots list slot {f} twice, out of range or while it holds a particle"
+                ));
+            }
+            free[f] = true;
+        }
+        if let Some(i) = (0..n).find(|&i| !state.slots[i].active && !free[i]) {
+            return Err(format!(
+                "slot {i} holds no particle but is not listed as free"
+            ));
+        }
+        let mut ids: Vec<u64> = state
+            .slots
+            .iter()
+            .filter(|s| s.active)
+            .map(|s| s.id)
+            .collect();
+        ids.sort_unstable();
+        if let Some(w) = ids.windows(2).find(|w| w[0] == w[1]) {
+            return Err(format!("particle id {} is held by two slots", w[0]));
+        }
+        if let Some(&last) = ids.last()
+            && last >= state.next_id
+        {
+            return Err(format!(
+                "particle id {last} is not below the next id to hand out ({})",
+                state.next_id
+            ));
+        }
+        for p in &state.pending_reinsert {
+            if usize::from(p.material) >= self.materials.len()
+                || !(p.radius > 0.0 && p.radius <= self.r_max)
+                || !(p.pos.is_finite() && p.vel.is_finite() && p.omega.is_finite())
+            {
+                return Err(
+                    "a particle waiting for re-insertion has an unknown material, a radius outside this scenario's grid or a state that is not finite".into(),
+                );
+            }
+        }
+        Ok(())
+    }
+
     pub fn import_state(&mut self, state: EngineState) -> Result<(), String> {
         if self.config.model != ContactModel::Hard {
             return Err(format!(
@@ -352,15 +404,42 @@ impl<Q: EventQueue> Engine<Q> {
                     .into(),
             );
         }
-        if state.free_slots.iter().any(|&f| f as usize >= n)
-            || state
-                .slots
-                .iter()
-                .any(|s| s.last_partner != super::NO_PARTNER && s.last_partner as usize >= n)
+        if state
+            .slots
+            .iter()
+            .any(|s| s.last_partner != super::NO_PARTNER && s.last_partner as usize >= n)
         {
             return Err("slot numbers beyond the particle table".into());
         }
+        self.check_slot_bookkeeping(&state)?;
         for (i, s) in state.slots.iter().enumerate().filter(|(_, s)| s.active) {
+            if usize::from(s.material) >= self.materials.len() {
+                return Err(format!(
+                    "particle {} has material {}, but this scenario has {} materials",
+                    s.id,
+                    s.material,
+                    self.materials.len()
+                ));
+            }
+            if !(s.inv_mass.is_finite() && s.inv_mass > 0.0) {
+                return Err(format!(
+                    "particle {} has inverse mass {} 1/kg: it must be finite and > 0",
+                    s.id, s.inv_mass
+                ));
+            }
+            // Exported at clock 0: a past collision or none (−∞).
+            if !(s.last_collision <= 0.0) {
+                return Err(format!(
+                    "particle {}: its last collision at engine clock {} s is not in the past",
+                    s.id, s.last_collision
+                ));
+            }
+            if !self.uses_cells() && !s.shell_centre.is_finite() {
+                return Err(format!(
+                    "particle {}: its neighbour shell's centre is not finite",
+                    s.id
+                ));
+            }
             if !(s.radius > 0.0 && s.radius <= self.r_max) {
                 return Err(format!(
                     "particle {} has radius {} m, outside (0, {}] m of this scenario's grid",
@@ -447,7 +526,16 @@ impl<Q: EventQueue> Engine<Q> {
         self.stall = None;
         self.soft_stats = state.soft_stats;
         self.cell_shape = state.cell_shape;
-        Ok(())
+        match self.find_bad_particle() {
+            None => Ok(()),
+            Some(bad) => Err(format!(
+                "particle {} at {} m lies outside the domain{}",
+                bad.id,
+                bad.position,
+                bad.outside_axis
+                    .map_or(String::new(), |a| format!(" along {}", ["x", "y", "z"][a]))
+            )),
+        }
     }
 }
 

@@ -59,9 +59,11 @@ pub fn run_cli(
         overrides.push(format!("time.t_end={t:e}"));
     }
     if let Some(every) = opts.progress_interval
-        && !(every.is_finite() && every > 0.0)
+        && !(every > 0.0 && every <= MAX_PROGRESS_INTERVAL_S)
     {
-        anyhow::bail!("--progress-interval: must be > 0 s and finite, got {every}");
+        anyhow::bail!(
+            "--progress-interval: must be in (0, {MAX_PROGRESS_INTERVAL_S:e}] s, got {every:?}"
+        );
     }
     let scenario = Scenario::from_file_with_overrides(scenario_path, &overrides)?;
     for w in &scenario.warnings {
@@ -377,6 +379,30 @@ struct WallClock {
     joined: f64,
 }
 
+/// Overlap of soft contacts (over the contact distance) above which a run
+/// stops: centres closer than half the contact distance.
+const MAX_SOFT_OVERLAP_REL: f64 = 0.5;
+
+/// Overlap (over the contact distance) above which a completed soft or
+/// hybrid run warns: ten times the default target overlap.
+const WARN_SOFT_OVERLAP_REL: f64 = 0.1;
+
+/// The warning of a run whose soft contacts overlapped by `overlap` (over
+/// the contact distance), if it is above [`WARN_SOFT_OVERLAP_REL`].
+fn soft_overlap_warning(overlap: f64) -> Option<String> {
+    (overlap > WARN_SOFT_OVERLAP_REL).then(|| {
+        format!(
+            "soft contacts overlapped by up to {:.1} % of their contact distance, more than {:.0} %: impacts were faster than engine.soft.impact_speed, or the spring (engine.soft) is too soft; results near contacts are doubtful",
+            100.0 * overlap,
+            100.0 * WARN_SOFT_OVERLAP_REL
+        )
+    })
+}
+
+/// The longest `--progress-interval` (s, about 30 years): longer ones
+/// would overflow the wall clock's durations.
+const MAX_PROGRESS_INTERVAL_S: f64 = 1e9;
+
 /// `f()` and the wall-clock time it took (s).
 fn timed<T>(f: impl FnOnce() -> T) -> (f64, T) {
     let start = Instant::now();
@@ -565,6 +591,23 @@ impl<Q: EventQueue> FlowLoop<'_, Q> {
         Ok(())
     }
 
+    /// Stops a soft or hybrid run whose contacts overlap by more than
+    /// [`MAX_SOFT_OVERLAP_REL`] of the contact distance: the spring is far
+    /// too soft for the speeds (a silent interpenetration otherwise).
+    fn check_soft_overlap(&self) -> anyhow::Result<()> {
+        let overlap = self.engine.soft_stats.max_overlap_rel;
+        if overlap > MAX_SOFT_OVERLAP_REL {
+            anyhow::bail!(
+                "{}: soft contacts overlap by {:.1} % of their contact distance at t = {:.6} s, more than the {:.0} % a spring-dashpot contact can stand for: the spring is too soft for these impact speeds; raise engine.soft.k_n, or lower engine.soft.max_overlap or raise engine.soft.impact_speed",
+                self.s.name,
+                100.0 * overlap,
+                self.engine.time(),
+                100.0 * MAX_SOFT_OVERLAP_REL
+            );
+        }
+        Ok(())
+    }
+
     /// Flow step `step` (0-based) of `dt` (s); `last`: the run's last.
     fn step(&mut self, step: u64, dt: f64, last: bool) -> anyhow::Result<()> {
         let s = self.s;
@@ -601,6 +644,7 @@ impl<Q: EventQueue> FlowLoop<'_, Q> {
             );
             self.stop_if_bad(closed?)?
         };
+        self.check_soft_overlap()?;
         if s.time.splitting != Splitting::FirstOrder {
             if let Some(g) = self.gas.as_mut() {
                 let start = Instant::now();
@@ -736,7 +780,7 @@ fn simulate<Q: EventQueue>(
     let first_step = match &opts.restart {
         Some(path) => {
             outdir::check_restart_path(path, out_dir, opts.log.as_deref())?;
-            let file = restart::read(path, s, fingerprint)?;
+            let file = restart::read(path, s, fingerprint, engine.time())?;
             restart::restore(path, file, &mut engine, gas.as_mut(), feeder.as_mut())?
         }
         None => 0,
@@ -837,6 +881,7 @@ fn simulate<Q: EventQueue>(
             .iter()
             .cloned()
             .chain(run.feeder.as_ref().and_then(|f| f.shortfall(engine.time())))
+            .chain(soft_overlap_warning(engine.soft_stats.max_overlap_rel))
             .collect(),
     };
     for w in summary.warnings.iter().skip(s.warnings.len()) {

@@ -155,8 +155,14 @@ fn capture<Q: EventQueue>(
 }
 
 /// Reads and checks the restart file at `path` for a run of `s` whose
-/// scenario fingerprint is `fingerprint`.
-pub(super) fn read(path: &Path, s: &Scenario, fingerprint: u64) -> anyhow::Result<RestartFile> {
+/// scenario fingerprint is `fingerprint` and which starts at `start_time`
+/// (s).
+pub(super) fn read(
+    path: &Path,
+    s: &Scenario,
+    fingerprint: u64,
+    start_time: f64,
+) -> anyhow::Result<RestartFile> {
     let (_, file): (_, RestartFile) = container::read(&RESTART_KIND, path)?;
     let name = path.display();
     if file.scenario != fingerprint {
@@ -170,6 +176,17 @@ pub(super) fn read(path: &Path, s: &Scenario, fingerprint: u64) -> anyhow::Resul
     }
     if !(file.time.is_finite() && file.time >= 0.0) {
         anyhow::bail!("{name}: the restart time {} s is not a time", file.time);
+    }
+    // The flow steps done must fill the time from the start: a restart is
+    // written only at a step's end.
+    let steps_in_time = (file.time - start_time) / s.time.dt_flow;
+    if !((file.step as f64 - steps_in_time).abs() <= 1e-6 * steps_in_time.max(1.0)) {
+        anyhow::bail!(
+            "{name}: the restart file counts {} flow steps done at t = {} s, but {steps_in_time:.6} steps of {} s fill the time from the start at {start_time} s: the file is damaged",
+            file.step,
+            file.time,
+            s.time.dt_flow
+        );
     }
     if file.time >= s.time.t_end * (1.0 - 1e-9) {
         anyhow::bail!(

@@ -363,7 +363,7 @@ pub struct EngineSettings {
     /// between flow steps ([`crate::engine::CellShapeRule`]).
     pub cell_shape: crate::engine::CellShapeRule,
     /// Neighbour-shell thickness as a fraction of the largest diameter,
-    /// in (0, 2]; with `adaptive_skin`, the thinnest of its levels.
+    /// in [0.01, 2]; with `adaptive_skin`, the thinnest of its levels.
     pub skin: f64,
     /// `skin = "auto"` (the default): the skin grows with the list rebuild
     /// rate between flow steps ([`crate::engine::EngineConfig::adaptive_skin`]).

@@ -223,8 +223,46 @@ pub(crate) fn validate(ctx: &Ctx, raw: RawScenario) -> R<Scenario> {
         gas,
         warnings: Vec::new(),
     };
+    check_soft_time_step(ctx, &scenario)?;
     scenario.warnings = limits::check(ctx, &scenario)?;
     Ok(scenario)
+}
+
+/// Most soft time steps per flow step: a stiffer spring or a smaller
+/// target overlap than this allows would take hours for a few flow steps
+/// (0.2 µs a particle-step, results/benchmarks.md "Soft and hybrid
+/// contacts"); realistic DEM stiffnesses give 10²–10⁴.
+pub const MAX_SOFT_STEPS_PER_FLOW_STEP: f64 = 1e6;
+
+/// Soft and hybrid models: the stiffness and soft time step the
+/// populations imply exist, and the soft time step fits the flow step at
+/// most [`MAX_SOFT_STEPS_PER_FLOW_STEP`] times. (A checkpoint's particles
+/// are checked when the run loads them.)
+fn check_soft_time_step(ctx: &Ctx, s: &Scenario) -> R<()> {
+    if s.engine.model == ContactModel::Hard || s.populations.is_empty() {
+        return Ok(());
+    }
+    let keys = match s.engine.soft.stiffness {
+        Stiffness::Direct(_) => "engine.soft.k_n",
+        Stiffness::Overlap { .. } => "engine.soft.max_overlap and impact_speed",
+    };
+    let d = s.soft_derived(std::iter::empty()).map_err(|e| {
+        ctx.err(
+            "engine.soft",
+            format!("the spring from {keys} is not usable for these particles: {e}"),
+        )
+    })?;
+    let steps = s.time.dt_flow / d.dt_max;
+    if !(steps <= MAX_SOFT_STEPS_PER_FLOW_STEP) {
+        return Err(ctx.err(
+            "engine.soft",
+            format!(
+                "the spring from {keys} (k_n = {:e} N/m) gives a soft time step of {:e} s, {steps:.3e} soft steps per flow step of {} s; at most {MAX_SOFT_STEPS_PER_FLOW_STEP:e} are allowed: use a softer spring (smaller k_n, larger max_overlap or smaller impact_speed), a larger collisions e_n (strong damping shortens the contacts) or a shorter time.dt_flow",
+                d.k_n, d.dt_max, s.time.dt_flow
+            ),
+        ));
+    }
+    Ok(())
 }
 
 /// `[[materials]]`: names unique, densities in range; with the index of
@@ -914,6 +952,12 @@ fn validate_time(ctx: &Ctx, raw: &raw::RawTime) -> R<TimeSettings> {
     })
 }
 
+/// The thinnest fixed neighbour-shell skin (fraction of the largest
+/// diameter): a thinner shell is left at nearly every event, so each
+/// collision costs many list rebuilds (a skin of 1e-5 ran a box 100 times
+/// slower than the default; 1e-8 did not finish).
+pub const MIN_SKIN: f64 = 0.01;
+
 /// `[engine]`: queue, neighbour search, skin, contact model and
 /// `[engine.soft]`.
 fn validate_engine(ctx: &Ctx, raw: Option<raw::RawEngine>) -> R<EngineSettings> {
@@ -924,7 +968,7 @@ fn validate_engine(ctx: &Ctx, raw: Option<raw::RawEngine>) -> R<EngineSettings> 
     let allowed = |got: String| {
         ctx.err(
             "engine.skin",
-            format!("must be \"auto\" or a number in (0, 2], got {got}"),
+            format!("must be \"auto\" or a number in [{MIN_SKIN}, 2], got {got}"),
         )
     };
     let (skin, adaptive_skin) = match skin {
@@ -934,7 +978,7 @@ fn validate_engine(ctx: &Ctx, raw: Option<raw::RawEngine>) -> R<EngineSettings> 
         Some(raw::RawSkin::Other(v)) => return Err(allowed(v.to_string())),
         Some(raw::RawSkin::Fraction(skin)) => (skin, false),
     };
-    if !(skin > 0.0 && skin <= 2.0) {
+    if !(skin >= MIN_SKIN && skin <= 2.0) {
         return Err(allowed(format!("{skin:?}")));
     }
     let model = model.unwrap_or_default();

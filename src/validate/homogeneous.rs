@@ -438,7 +438,8 @@ fn eos(mode: Mode) -> Measurement {
     let mut parts = Vec::new();
     let mut measured = Vec::new();
     for phi in [0.1, 0.2, 0.3, 0.4, 0.45] {
-        let r = bench::run(&eos_options(phi, n, measure));
+        let r = bench::run(&eos_options(phi, n, measure))
+            .expect("the catalogue's bench options are valid");
         let z = r.pressure_reduced / (6.0 * phi / std::f64::consts::PI);
         measured.push((phi, z));
         // A (partly) crystalline state is not the fluid this checks.
@@ -558,7 +559,8 @@ pub fn energy_conservation_options(n: usize, measure: f64) -> BenchOptions {
 /// walks to ~1e-13 over 1e6 collisions: 1e-10 in both.
 fn energy_conservation(mode: Mode) -> Measurement {
     let (n, measure) = mode.pick((4000, 250.0), (2000, 100.0));
-    let r: BenchResult = bench::run(&energy_conservation_options(n, measure));
+    let r: BenchResult = bench::run(&energy_conservation_options(n, measure))
+        .expect("the catalogue's bench options are valid");
     Measurement::new(vec![Part::scaled(
         format!("{} collisions", r.collisions),
         r.energy_drift,
