@@ -77,7 +77,8 @@ fn split_values(text: &str) -> Vec<String> {
 }
 
 fn parse_axes(sets: &[String]) -> anyhow::Result<Vec<Axis>> {
-    sets.iter()
+    let axes: Vec<Axis> = sets
+        .iter()
         .map(|s| {
             let Some((key, values)) = s.split_once('=') else {
                 bail!("--set {s:?}: expected KEY=VALUE or KEY=V1,V2,...");
@@ -91,7 +92,17 @@ fn parse_axes(sets: &[String]) -> anyhow::Result<Vec<Axis>> {
                 values,
             })
         })
-        .collect()
+        .collect::<anyhow::Result<_>>()?;
+    for (i, a) in axes.iter().enumerate() {
+        if axes[..i].iter().any(|b| b.key == a.key) {
+            bail!(
+                "--set {}: the key is given twice; give all its values in one --set {}=V1,V2,...",
+                a.key,
+                a.key
+            );
+        }
+    }
+    Ok(axes)
 }
 
 /// The grid's points as override lists, first axis slowest. In a value,
@@ -129,20 +140,38 @@ fn grid(axes: &[Axis]) -> Vec<Vec<String>> {
 /// `FILE.csv:COLUMN` is the mean over rows with `time_s >= after`,
 /// `FILE.csv:COLUMN:std` their sample standard deviation, anything else a
 /// dotted path into `summary.json`.
-fn column_value(dir: &Path, summary: &serde_json::Value, column: &str, after: f64) -> Option<f64> {
+fn column_value(
+    dir: &Path,
+    summary: &serde_json::Value,
+    column: &str,
+    after: f64,
+) -> Result<f64, String> {
     if let Some((file, name)) = column.split_once(':') {
         let (name, std) = match name.strip_suffix(":std") {
             Some(n) => (n, true),
             None => (name, false),
         };
-        let table = CsvColumns::read(&dir.join(file)).ok()?;
-        let (t, c) = (table.column("time_s")?, table.column(name)?);
+        let table = CsvColumns::read(&dir.join(file)).map_err(|_| format!("no file {file}"))?;
+        let t = table
+            .column("time_s")
+            .ok_or(format!("{file} has no time_s"))?;
+        let c = table.column(name).ok_or_else(|| {
+            format!(
+                "{file} has no column {name:?} (it has {})",
+                table.header.join(", ")
+            )
+        })?;
         let values: Vec<f64> = table
             .rows
             .iter()
             .filter(|r| r.get(t).is_some_and(|&time| time >= after))
             .filter_map(|r| r.get(c).copied())
             .collect();
+        if values.is_empty() {
+            return Err(format!(
+                "{file} has no rows at t >= --average-after = {after} s"
+            ));
+        }
         let n = values.len() as f64;
         let mean = values.iter().sum::<f64>() / n;
         let value = if std {
@@ -150,12 +179,19 @@ fn column_value(dir: &Path, summary: &serde_json::Value, column: &str, after: f6
         } else {
             mean
         };
-        return value.is_finite().then_some(value);
+        return if value.is_finite() {
+            Ok(value)
+        } else {
+            Err(format!("{file}:{name} averages to {value}"))
+        };
     }
-    column
+    let value = column
         .split('.')
-        .try_fold(summary, |v, k| v.get(k))?
+        .try_fold(summary, |v, k| v.get(k))
+        .ok_or_else(|| format!("summary.json has no {column:?}"))?;
+    value
         .as_f64()
+        .ok_or_else(|| format!("summary.json's {column:?} is not a number ({value})"))
 }
 
 /// Result of one point's run.
@@ -179,7 +215,7 @@ fn run_point(
         .arg("--out")
         .arg(dir);
     if let Some(t) = opts.t_end {
-        cmd.arg("--t-end").arg(format!("{t:?}"));
+        cmd.arg(format!("--t-end={t:?}"));
     }
     if opts.force {
         cmd.arg("--force");
@@ -189,14 +225,18 @@ fn run_point(
     }
     let error = match cmd.output() {
         Ok(o) if o.status.success() => None,
-        Ok(o) => Some(
-            String::from_utf8_lossy(&o.stderr)
+        Ok(o) => {
+            let err = String::from_utf8_lossy(&o.stderr);
+            let line = err
                 .lines()
                 .find(|l| l.starts_with("edpm: error:"))
-                .unwrap_or("the run failed without a message")
-                .trim_start_matches("edpm: error: ")
-                .to_string(),
-        ),
+                .or_else(|| err.lines().find(|l| !l.trim().is_empty()))
+                .map_or_else(
+                    || format!("the run failed ({}) without a message", o.status),
+                    |l| l.trim_start_matches("edpm: error: ").to_string(),
+                );
+            Some(line)
+        }
         Err(e) => Some(format!("could not start {}: {e}", exe.display())),
     };
     PointResult {
@@ -211,6 +251,11 @@ pub fn sweep_cli(scenario: &Path, opts: &SweepOptions) -> anyhow::Result<()> {
     let axes = parse_axes(&opts.sets)?;
     if !axes.iter().any(|a| a.values.len() > 1) {
         bail!("--set: no key has several values (KEY=V1,V2,...): nothing to sweep");
+    }
+    if let Some(t) = opts.t_end
+        && !(t.is_finite() && t > 0.0)
+    {
+        bail!("--t-end: must be > 0 s and finite, got {t}");
     }
     if !(opts.average_after.is_finite()) {
         bail!(
@@ -243,7 +288,7 @@ pub fn sweep_cli(scenario: &Path, opts: &SweepOptions) -> anyhow::Result<()> {
         );
     }
     let results = run_points(scenario, &points, &dirs, opts)?;
-    write_tables(scenario, opts, &axes, &points, &dirs, &results)?;
+    let unknown_columns = write_tables(scenario, opts, &axes, &points, &dirs, &results)?;
     let failed: Vec<String> = results
         .iter()
         .enumerate()
@@ -260,6 +305,17 @@ pub fn sweep_cli(scenario: &Path, opts: &SweepOptions) -> anyhow::Result<()> {
             failed.len(),
             points.len(),
             failed.join("; ")
+        );
+    }
+    if !unknown_columns.is_empty() {
+        bail!(
+            "--columns: no point gave {} (their cells are empty): {}",
+            if unknown_columns.len() == 1 {
+                "this column"
+            } else {
+                "these columns"
+            },
+            unknown_columns.join("; ")
         );
     }
     Ok(())
@@ -311,7 +367,8 @@ fn run_points(
 }
 
 /// `sweep.csv` and `sweep.md`: one row per point with its swept values,
-/// status, wall time and the chosen columns.
+/// status, wall time and the chosen columns. Returns the columns that no
+/// completed point could give, each with the reason.
 fn write_tables(
     scenario: &Path,
     opts: &SweepOptions,
@@ -319,7 +376,7 @@ fn write_tables(
     points: &[Vec<String>],
     dirs: &[PathBuf],
     results: &[PointResult],
-) -> anyhow::Result<()> {
+) -> anyhow::Result<Vec<String>> {
     let swept: Vec<&Axis> = axes.iter().filter(|a| a.values.len() > 1).collect();
     let mut columns: Vec<String> = if opts.columns.is_empty() {
         DEFAULT_COLUMNS.iter().map(|c| c.to_string()).collect()
@@ -334,6 +391,7 @@ fn write_tables(
     header.extend(["status".into(), "wall_seconds".into()]);
     header.extend(columns.iter().cloned());
     let mut rows: Vec<Vec<String>> = Vec::new();
+    let mut problems = vec![ColumnProblem::default(); columns.len()];
     for (i, (dir, r)) in dirs.iter().zip(results).enumerate() {
         let summary: serde_json::Value = std::fs::read_to_string(dir.join("summary.json"))
             .ok()
@@ -359,11 +417,15 @@ fn write_tables(
             .into(),
         );
         row.push(format!("{:.2}", r.seconds));
-        for c in &columns {
-            row.push(
-                column_value(dir, &summary, c, opts.average_after)
-                    .map_or_else(String::new, format_number),
-            );
+        for (c, problem) in columns.iter().zip(problems.iter_mut()) {
+            let value = column_value(dir, &summary, c, opts.average_after);
+            if r.error.is_none() {
+                match &value {
+                    Ok(_) => problem.found = true,
+                    Err(e) => problem.reason = Some(e.clone()),
+                }
+            }
+            row.push(value.map_or_else(|_| String::new(), format_number));
         }
         rows.push(row);
     }
@@ -405,7 +467,23 @@ fn write_tables(
             md += &format!("\npoint-{i:03} failed: {e}\n");
         }
     }
-    write_atomic(&opts.out.join("sweep.md"), md.as_bytes())
+    write_atomic(&opts.out.join("sweep.md"), md.as_bytes())?;
+    // A column that no completed point has is a typo or an empty window,
+    // not a result.
+    Ok(columns
+        .iter()
+        .zip(problems)
+        .filter(|(_, p)| !p.found)
+        .filter_map(|(c, p)| p.reason.map(|r| format!("column {c:?}: {r}")))
+        .collect())
+}
+
+/// Whether any completed point gave a column a value, and why the last
+/// one that did not failed.
+#[derive(Clone, Debug, Default)]
+struct ColumnProblem {
+    found: bool,
+    reason: Option<String>,
 }
 
 /// Integers as integers, other numbers with full precision.

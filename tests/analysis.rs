@@ -1231,6 +1231,29 @@ fn analyse_errors_name_the_problem() {
         a.extend(args);
         assert_clean_failure(&edpm(&a), &needles);
     }
+    // A snapshot copied to a later number (same run id, valid checksums)
+    // would be counted twice and stretch the time range: refused, naming
+    // both files.
+    let snaps = run.join("snapshots");
+    let mut names: Vec<_> = std::fs::read_dir(&snaps)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().into_string().unwrap())
+        .collect();
+    names.sort();
+    assert!(names.len() >= 2, "{names:?}");
+    let copy = snaps.join("999999.bin");
+    std::fs::copy(snaps.join(&names[0]), &copy).unwrap();
+    assert_clean_failure(
+        &edpm(&["analyse", r]),
+        &[
+            "999999.bin",
+            "does not follow",
+            names.last().unwrap(),
+            "time order",
+        ],
+    );
+    std::fs::remove_file(&copy).unwrap();
+    assert_success(&edpm(&["analyse", r]));
 }
 
 /// The collision tally in a periodic box: pairs colliding across a periodic

@@ -613,6 +613,68 @@ fn bench_refuses_every_option_outside_its_range() {
     assert_success(&o);
 }
 
+/// A sweep refuses what would make its table lie or hide an error: a key
+/// given in two `--set`s (every run took the second value while the table
+/// showed the first), a bad `--t-end` (each run failed "without a
+/// message": the value reached the runs as a flag), and columns that no
+/// completed point has (a typo, or an average over no rows), which left
+/// empty cells and exit 0.
+#[test]
+fn sweep_refuses_a_repeated_key_a_bad_t_end_and_columns_no_point_has() {
+    let dir = fresh_dir("sweep-refusals");
+    let out = dir.join("sweep");
+    let sweep = |extra: &[&str]| {
+        let mut args = vec![
+            "sweep",
+            "scenarios/box-walls.toml",
+            "--set",
+            "collisions.default.e_n=0.9,0.8",
+            "--out",
+            out.to_str().unwrap(),
+            "--force",
+        ];
+        args.extend_from_slice(extra);
+        edpm(&args)
+    };
+    let o = sweep(&[
+        "--set",
+        "collisions.default.e_n=0.7,0.6",
+        "--t-end",
+        "0.005",
+    ]);
+    assert_clean_failure(&o, &["collisions.default.e_n: the key is given twice"]);
+    let o = sweep(&["--t-end=-1"]);
+    assert_clean_failure(&o, &["--t-end: must be > 0 s and finite, got -1"]);
+    let o = sweep(&[
+        "--t-end",
+        "0.005",
+        "--columns",
+        "nosuch.field,timeseries.csv:nope,counters.pair_collisions",
+    ]);
+    assert_clean_failure(
+        &o,
+        &[
+            "--columns: no point gave these columns",
+            "summary.json has no \"nosuch.field\"",
+            "timeseries.csv has no column \"nope\"",
+        ],
+    );
+    // The table is still written, with the good column filled.
+    let csv = std::fs::read_to_string(out.join("sweep.csv")).unwrap();
+    let row: Vec<&str> = csv.lines().nth(1).unwrap().split(',').collect();
+    assert_eq!(&row[4..6], ["", ""], "{csv}");
+    assert!(row[6].parse::<u64>().is_ok(), "{csv}");
+    let o = sweep(&[
+        "--t-end",
+        "0.005",
+        "--columns",
+        "timeseries.csv:pair_collisions",
+        "--average-after",
+        "1e9",
+    ]);
+    assert_clean_failure(&o, &["has no rows at t >= --average-after"]);
+}
+
 /// `edpm sweep` runs the Cartesian product of the listed values, one run
 /// per point, and each point is the same run as `edpm run` with the same
 /// overrides (bit-identical summary figures, whatever the job count). A

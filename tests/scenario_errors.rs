@@ -409,6 +409,12 @@ fn amounts_and_caps() {
     let v = 0.02 * 0.04 * 0.02;
     let expected = (0.1 * v / (std::f64::consts::PI / 6.0 * 1e-9)).round() as usize;
     assert_eq!(s.populations[0].count, expected);
+    // A positive fraction that rounds to no particle (1.5e-5 here).
+    expect_field(
+        parse(&replace("count = 100", "solids_fraction = 1e-9")),
+        "particles[0].solids_fraction",
+        "which rounds to none; give count = 0 for an empty population",
+    );
     expect_field(
         with(&["particles.0.count=100000"]),
         "particles[0].count",

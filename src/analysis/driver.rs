@@ -1199,8 +1199,11 @@ fn first_pass<'a>(
     let mut pass: Option<Pass1> = None;
     let mut prev: Option<Snapshot> = None;
     let mut last_time = f64::NAN;
-    for path in paths {
+    for (k, path) in paths.iter().enumerate() {
         let snap = Snapshot::read(path)?;
+        if k > 0 {
+            Snapshot::check_follows(&paths[k - 1], last_time, path, snap.time)?;
+        }
         last_time = snap.time;
         if used(&snap, opts.t_start) {
             match pass.as_ref() {

@@ -284,7 +284,35 @@ impl Snapshot {
     pub fn read_all(run_dir: &Path) -> anyhow::Result<Vec<Snapshot>> {
         let paths = Snapshot::paths(run_dir)?;
         Snapshot::check_one_run(&paths)?;
-        paths.iter().map(|p| Snapshot::read(p)).collect()
+        let mut snaps: Vec<Snapshot> = Vec::with_capacity(paths.len());
+        for (k, p) in paths.iter().enumerate() {
+            let snap = Snapshot::read(p)?;
+            if k > 0 {
+                Snapshot::check_follows(&paths[k - 1], snaps[k - 1].time, p, snap.time)?;
+            }
+            snaps.push(snap);
+        }
+        Ok(snaps)
+    }
+
+    /// Refuses a snapshot at `path` (time `time`, s) that does not come
+    /// strictly after the one before it in file order (`previous`, at
+    /// `previous_time`): a copied or renamed file would count a state
+    /// twice or out of order.
+    pub fn check_follows(
+        previous: &Path,
+        previous_time: f64,
+        path: &Path,
+        time: f64,
+    ) -> anyhow::Result<()> {
+        if time > previous_time {
+            return Ok(());
+        }
+        anyhow::bail!(
+            "{}: its time t = {time} s does not follow t = {previous_time} s of {}: the snapshots of a run are numbered in time order (a copied or renamed file?)",
+            path.display(),
+            previous.display()
+        )
     }
 }
 

@@ -586,6 +586,17 @@ fn population_amount(
                     format!("gives {n:e} particles; at most {MAX_PARTICLES} are allowed"),
                 ));
             }
+            // A positive fraction that rounds to no particle is a slip
+            // (a unit, a missing exponent), not an empty population.
+            if n < 1.0 {
+                return Err(ctx.err(
+                    &fpath,
+                    format!(
+                        "{phi:?} of the region holds {:.3e} particles of the mean size, which rounds to none; give count = 0 for an empty population, or a larger fraction",
+                        phi * region_volume / diameter.mean_volume()
+                    ),
+                ));
+            }
             (n as usize, Some(phi))
         }
     })
