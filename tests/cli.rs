@@ -444,6 +444,35 @@ fn checkpoint_round_trip_restarts_from_the_final_state() {
     r2.sort_by(f64::total_cmp);
     assert_eq!(r1, r2);
 
+    // A checkpoint, or the scenario file itself, among the outputs the run
+    // writes: refused even with --force (each run would start from the
+    // last one's end, and resolved.toml would replace the scenario).
+    let o = run_into(
+        scenario.to_str().unwrap(),
+        &first,
+        &["--force", "--t-end", "0.01"],
+    );
+    assert_clean_failure(
+        &o,
+        &[
+            "initial.checkpoint",
+            "final_state.bin",
+            "lies among the outputs",
+        ],
+    );
+    let o = run_into(
+        first.join("resolved.toml").to_str().unwrap(),
+        &first,
+        &["--force", "--t-end", "0.01"],
+    );
+    assert_clean_failure(
+        &o,
+        &[
+            "the scenario file",
+            "resolved.toml",
+            "lies among the outputs",
+        ],
+    );
     // A checkpoint that is not one fails cleanly, naming it.
     std::fs::write(first.join("final_state.bin"), b"not a checkpoint").unwrap();
     let o = run_into(scenario.to_str().unwrap(), &second, &["--t-end", "0.01"]);

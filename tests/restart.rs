@@ -364,7 +364,7 @@ fn damaged_or_mismatched_restart_files_are_refused_in_plain_words() {
     assert_eq!(
         error_line(&o),
         format!(
-            "--restart {}: lies among the outputs of {}, which the run deletes when it starts; copy it elsewhere or give another --out",
+            "--restart {}: lies among the outputs of {}, which the run deletes or overwrites; copy it elsewhere or give another --out",
             inside.display(),
             run.display()
         )

@@ -81,6 +81,11 @@ pub fn run_cli(
     if let Some(log) = &opts.log {
         outdir::check_log_path(log, &out_dir, &[scenario_path])?;
     }
+    outdir::check_input_path(
+        &format!("the scenario file {}", scenario_path.display()),
+        scenario_path,
+        &out_dir,
+    )?;
     outdir::check_reuse(&out_dir, opts.force)?;
     let summary = run_scenario_with(&scenario, &out_dir, opts)?;
     eprintln!(
@@ -758,6 +763,13 @@ fn simulate<Q: EventQueue>(
 ) -> anyhow::Result<Summary> {
     let wall_start = Instant::now();
     let cpu_start = crate::timing::cpu_time();
+    if let Some(checkpoint) = &s.initial.checkpoint {
+        outdir::check_input_path(
+            &format!("initial.checkpoint {}", checkpoint.display()),
+            checkpoint,
+            out_dir,
+        )?;
+    }
     let mut engine = build_engine::<Q>(s)?;
     restart::check_model(s, opts.restart.is_some())?;
     let mut gas = GasRun::new(s);

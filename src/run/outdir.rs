@@ -268,21 +268,32 @@ pub fn check_restart_path(
             restart.display()
         );
     }
-    let abs = resolve(restart);
-    let inside = abs.parent() == Some(resolve(out_dir).as_path())
+    check_input_path(
+        &format!("--restart {}", restart.display()),
+        restart,
+        out_dir,
+    )
+}
+
+/// Refuses an input of the run (`what`, at `input`) that lies among the
+/// outputs it writes or deletes in `out_dir`: the run would replace the
+/// file it reads, and the same command run again would read another one.
+pub fn check_input_path(what: &str, input: &Path, out_dir: &Path) -> anyhow::Result<()> {
+    let abs = resolve(input);
+    let out_abs = resolve(out_dir);
+    let own_file = abs.parent() == Some(out_abs.as_path())
         && abs
             .file_name()
             .and_then(|n| n.to_str())
             .is_some_and(|n| OWN_FILES.contains(&n));
-    if inside
+    if own_file
         || OWN_DIRS
             .iter()
-            .any(|(d, _)| abs.starts_with(resolve(out_dir).join(d)))
+            .any(|(d, _)| abs.starts_with(out_abs.join(d)))
     {
         anyhow::bail!(
-            "--restart {}: lies among the outputs of {}, which the run deletes when it starts; \
+            "{what}: lies among the outputs of {}, which the run deletes or overwrites; \
              copy it elsewhere or give another --out",
-            restart.display(),
             out_dir.display()
         );
     }
