@@ -747,14 +747,20 @@ fn assert_clean_failure(o: &Output, needles: &[&str]) {
     }
 }
 
-/// A CSV file as a header and rows of numbers.
+/// A CSV file as a header and rows of numbers (an empty cell, an
+/// undefined value, as NaN).
 fn read_csv(path: &Path) -> (Vec<String>, Vec<Vec<f64>>) {
     let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
     let mut lines = text.lines();
     let header = lines.next().unwrap().split(',').map(String::from).collect();
-    let rows = lines
-        .map(|l| l.split(',').map(|x| x.parse::<f64>().unwrap()).collect())
-        .collect();
+    let cell = |x: &str| {
+        if x.is_empty() {
+            f64::NAN
+        } else {
+            x.parse::<f64>().unwrap()
+        }
+    };
+    let rows = lines.map(|l| l.split(',').map(cell).collect()).collect();
     (header, rows)
 }
 
@@ -1287,4 +1293,45 @@ fn periodic_tally_matches_the_run_and_enskog() {
     // 5 % (1.5 % statistical error, a2 ≈ 0.01 corrections).
     let pc_cs = json["ktgf"]["test"]["pc_ratio"].as_f64().unwrap();
     assert!((pc_cs - 1.0).abs() < 0.05, "{pc_cs}");
+}
+
+/// No CSV the analysis writes holds `NaN` or `inf`: an undefined value (the
+/// wall-to-core ratio of a box whose every cell touches a wall) is an
+/// empty cell, as it is `null` in analysis.json (docs/data-files.md).
+#[test]
+fn undefined_values_are_empty_cells_not_nan() {
+    let dir = fresh_dir("no-nan");
+    let run = dir.join("run");
+    assert_success(&edpm(&[
+        "run",
+        "scenarios/box-walls.toml",
+        "--quiet",
+        "--out",
+        run.to_str().unwrap(),
+        "--t-end",
+        "0.02",
+        "--set",
+        "output.snapshot_interval=0.005",
+    ]));
+    assert_success(&edpm(&["analyse", run.to_str().unwrap()]));
+    let mut csvs = 0;
+    for entry in std::fs::read_dir(run.join("analysis")).unwrap() {
+        let path = entry.unwrap().path();
+        if path.extension().is_some_and(|e| e == "csv") {
+            let text = std::fs::read_to_string(&path).unwrap();
+            let lower = text.to_lowercase();
+            assert!(
+                !lower.contains("nan") && !lower.contains("inf"),
+                "{}: {text}",
+                path.display()
+            );
+            csvs += 1;
+        }
+    }
+    assert!(csvs >= 5, "{csvs} analysis CSV files");
+    let (header, rows) = read_csv(&run.join("analysis/heterogeneity_by_height.csv"));
+    let c = column(&header, "wall_to_core_ratio");
+    assert!(rows.iter().all(|r| r[c].is_nan()), "read back as missing");
+    let text = std::fs::read_to_string(run.join("analysis/heterogeneity_by_height.csv")).unwrap();
+    assert!(text.lines().skip(1).all(|l| l.ends_with(',')), "{text}");
 }

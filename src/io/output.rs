@@ -126,9 +126,13 @@ pub const INTEGER_COLUMNS: &[&str] = &[
 ];
 
 /// One CSV cell: integers (by column) without a fraction, other numbers
-/// with full round-trip precision.
+/// with full round-trip precision, and an empty cell where a value is
+/// undefined (not finite: a ratio over no samples), as `null` in JSON;
+/// spreadsheets, pandas and [`CsvColumns::read`] read it as missing.
 pub fn csv_number(v: f64, integer: bool) -> String {
-    if integer && v.is_finite() && v.fract() == 0.0 && v.abs() < 9.007e15 {
+    if !v.is_finite() {
+        String::new()
+    } else if integer && v.fract() == 0.0 && v.abs() < 9.007e15 {
         format!("{}", v as i64)
     } else {
         format!("{v:?}")
