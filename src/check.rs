@@ -33,6 +33,13 @@ pub fn check_cli(
         overrides.push(format!("time.t_end={t:e}"));
     }
     let s = Scenario::from_file_with_overrides(scenario_path, &overrides)?;
+    // As `edpm run` would, before it builds anything: the checkpoint exists
+    // and is one (its header and checksums; the particles are read by the
+    // run).
+    if let Some(cp) = &s.initial.checkpoint {
+        crate::io::container::read_header(&crate::io::output::CHECKPOINT_KIND, cp)
+            .map_err(|e| anyhow::anyhow!("{}: initial.checkpoint: {e:#}", s.name))?;
+    }
     print!("{}", resolved_toml(&s));
     eprint!("{}", report(&s));
     Ok(())

@@ -435,20 +435,39 @@ const WORKER_STACK_BYTES: usize = 8 << 20;
 /// to the pool and sleep until it is done: on one thread that round trip
 /// through the kernel took about a tenth of the jet bed's time
 /// (results/benchmarks.md, "fourth session").
-fn on_worker_thread<T: Send>(work: impl FnOnce() -> T + Send) -> T {
-    match rayon::ThreadPoolBuilder::new()
-        .stack_size(WORKER_STACK_BYTES)
-        .build()
-    {
-        Ok(pool) => pool.install(work),
-        Err(_) => work(),
+fn on_worker_thread<T: Send>(work: impl FnOnce() -> T + Send) -> anyhow::Result<T> {
+    if let Ok(text) = std::env::var("RAYON_NUM_THREADS") {
+        let cpus = std::thread::available_parallelism().map_or(1, std::num::NonZeroUsize::get);
+        let most = (MAX_THREADS_PER_CPU * cpus).max(MAX_THREADS_ANY_MACHINE);
+        match text.trim().parse::<usize>() {
+            Ok(n) if n <= most => {}
+            _ => anyhow::bail!(
+                "RAYON_NUM_THREADS={text:?}: must be a thread count in 0..={most} on this machine (0 means one per CPU)"
+            ),
+        }
     }
+    Ok(
+        match rayon::ThreadPoolBuilder::new()
+            .stack_size(WORKER_STACK_BYTES)
+            .build()
+        {
+            Ok(pool) => pool.install(work),
+            Err(_) => work(),
+        },
+    )
 }
+
+/// Most threads `RAYON_NUM_THREADS` may ask for: 16 per CPU, and 256 on
+/// any machine (to test thread-count independence on a small one). More
+/// only adds threads that wait: 100000 of them took minutes to start a
+/// 5 ms run.
+const MAX_THREADS_PER_CPU: usize = 16;
+const MAX_THREADS_ANY_MACHINE: usize = 256;
 
 /// Parses the command line and runs the subcommand on a worker thread.
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    let result = on_worker_thread(|| dispatch(cli.command));
+    let result = on_worker_thread(|| dispatch(cli.command)).and_then(|r| r);
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {

@@ -50,6 +50,18 @@ pub struct ReplayOutcome {
     pub gas_at: Option<Box<GasBlock>>,
 }
 
+/// `t` (s) as file names and messages show it: plainly (`0.005`), or in
+/// exponent form where that would be long (`1e-320`, not 320 digits,
+/// which no file system takes as a name).
+fn time_label(t: f64) -> String {
+    let plain = format!("{t}");
+    if plain.len() <= 20 {
+        plain
+    } else {
+        format!("{t:e}")
+    }
+}
+
 /// Entry point of `edpm replay`.
 pub fn replay_cli(path: &Path, opts: &ReplayOptions) -> anyhow::Result<()> {
     let (outcome, replay) = replay_log(path, opts)?;
@@ -77,19 +89,20 @@ pub fn replay_cli(path: &Path, opts: &ReplayOptions) -> anyhow::Result<()> {
     };
     if let Some(t) = opts.at {
         let particles = replay.positions_at(t);
-        let stem = format!("state_at_{t}");
+        let label = time_label(t);
+        let stem = format!("state_at_{label}");
         write_state_csv(&particles, &out_dir.join(format!("{stem}.csv")))?;
         write_state_vtk(&particles, &out_dir.join(format!("{stem}.vtk")))?;
         println!(
-            "state at t = {t} s: {} particles written to {}/{stem}.{{csv,vtk}}",
+            "state at t = {label} s: {} particles written to {}/{stem}.{{csv,vtk}}",
             particles.len(),
             out_dir.display()
         );
         if let Some(g) = &outcome.gas_at {
-            let name = format!("gas_at_{t}.vtk");
+            let name = format!("gas_at_{label}.vtk");
             write_gas_vtk(g, &out_dir.join(&name))?;
             println!(
-                "gas fields at t = {t} s written to {}/{name}",
+                "gas fields at t = {label} s written to {}/{name}",
                 out_dir.display()
             );
         } else if let Some(&last) = outcome.gas_times.last() {

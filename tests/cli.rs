@@ -1132,3 +1132,65 @@ fn a_vtk_write_failure_stops_the_run_naming_the_file() {
         "samples at 0, 10, 20 ms"
     );
 }
+
+/// A thread count no machine can use is refused before anything starts
+/// (100000 threads took minutes to start a 5 ms run), and a replay at a
+/// subnormal time names its files in exponent form (320 digits made a
+/// name no file system takes).
+#[test]
+fn absurd_thread_counts_and_replay_times_fail_or_work_cleanly() {
+    for threads in ["100000", "abc", "-1"] {
+        let o = edpm_env(
+            &[
+                "run",
+                "scenarios/box-walls.toml",
+                "--t-end",
+                "0.005",
+                "--quiet",
+            ],
+            &[("RAYON_NUM_THREADS", threads)],
+        );
+        assert_clean_failure(&o, &["RAYON_NUM_THREADS", "must be a thread count in 0..="]);
+    }
+    let dir = fresh_dir("replay-tiny-time");
+    let log = dir.join("run.log");
+    assert_success(&run_into(
+        "scenarios/box-walls.toml",
+        &dir.join("run"),
+        &["--t-end", "0.005", "--log", log.to_str().unwrap()],
+    ));
+    let out = dir.join("replay");
+    let o = edpm(&[
+        "replay",
+        log.to_str().unwrap(),
+        "--at=1e-320",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert_success(&o);
+    assert!(out.join("state_at_1e-320.csv").is_file());
+    // --out naming a file, and `edpm check` of a scenario whose checkpoint
+    // does not exist: refused as `edpm run` refuses them, in plain words.
+    let file = dir.join("a-file");
+    std::fs::write(&file, b"x").unwrap();
+    let o = run_into("scenarios/box-walls.toml", &file, &["--t-end", "0.005"]);
+    assert_clean_failure(&o, &["a-file", "is a file, not a directory"]);
+    let box_walls =
+        std::fs::read_to_string(Path::new(ROOT).join("scenarios/box-walls.toml")).unwrap();
+    let (start, end) = (
+        box_walls.find("[[particles]]").unwrap(),
+        box_walls.find("[time]").unwrap(),
+    );
+    let scenario = dir.join("from-nothing.toml");
+    std::fs::write(
+        &scenario,
+        format!(
+            "{}[initial]\ncheckpoint = \"no-such.bin\"\n\n{}",
+            &box_walls[..start],
+            &box_walls[end..]
+        ),
+    )
+    .unwrap();
+    let o = edpm(&["check", scenario.to_str().unwrap()]);
+    assert_clean_failure(&o, &["initial.checkpoint", "no-such.bin", "No such file"]);
+}

@@ -106,6 +106,12 @@ pub fn earlier_outputs(out_dir: &Path) -> Vec<String> {
 /// Refuses an output directory holding an earlier run's outputs, unless
 /// `force` (then [`clear_outputs`] deletes them when the run starts).
 pub fn check_reuse(out_dir: &Path, force: bool) -> anyhow::Result<()> {
+    if out_dir.exists() && !out_dir.is_dir() {
+        anyhow::bail!(
+            "--out {}: is a file, not a directory; give a directory for the run's outputs",
+            out_dir.display()
+        );
+    }
     let found = earlier_outputs(out_dir);
     if found.is_empty() || force {
         return Ok(());
