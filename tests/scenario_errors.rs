@@ -1007,13 +1007,17 @@ fn gas_unknown_keys_and_bad_values() {
             "gas.viscosity",
             "must be in (0.0, 10.0] Pa s, got 0.0",
         ),
-        ("gas.pressure=-1", "gas.pressure", "(0.0, 1000000000.0] Pa"),
         (
-            "gas.molar_mass=2",
-            "gas.molar_mass",
-            "(0.0, 1.0] kg/mol, got 2.0",
+            "gas.pressure=1e-300",
+            "gas.pressure",
+            "[1000.0, 1000000000.0] Pa",
         ),
-        ("gas.temperature=nan", "gas.temperature", "(0.0, 10000.0] K"),
+        (
+            "gas.molar_mass=1e-300",
+            "gas.molar_mass",
+            "[0.001, 1.0] kg/mol, got 1e-300",
+        ),
+        ("gas.temperature=nan", "gas.temperature", "[1.0, 10000.0] K"),
         (
             "gas.linear_tolerance=0.1",
             "gas.linear_tolerance",
@@ -1293,6 +1297,20 @@ fn gas_jet_pulsing() {
         "gas.jets[0].period",
         "must be >= 0",
     );
+    // Pulses shorter than the finest gas sub-step (dt_flow / 16 = 6.25e-6
+    // s at the base's 1e-4 s) fall between the steps that switch the jet.
+    expect_field(
+        with_gas(&[&jet("period = 1e-300, on_time = 5e-301")]),
+        "gas.jets[0].on_time",
+        "shorter than the shortest gas sub-step (6.25e-6 s = time.dt_flow / 16)",
+    );
+    expect_field(
+        with_gas(&[&jet("period = 0.1, on_time = 0.099999")]),
+        "gas.jets[0].period",
+        "the jet is off for",
+    );
+    with_gas(&[&jet("period = 1e-4, on_time = 1e-4")]).unwrap();
+    with_gas(&[&jet("period = 2e-5, on_time = 1e-5")]).unwrap();
     expect_field(
         with_gas(&[&jet("start = -1")]),
         "gas.jets[0].start",

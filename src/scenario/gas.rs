@@ -101,19 +101,20 @@ fn equation_of_state(ctx: &Ctx, raw: &RawGas) -> R<(GasModel, f64, f64)> {
                  it is only given with gas.model = \"incompressible\"";
             forbid(ctx, "gas.density", raw.density, why)?;
             GasModel::IdealGas {
-                molar_mass: open_closed(
+                // Hydrogen (2.0e-3 kg/mol) to the heaviest gases (UF6, 0.35).
+                molar_mass: closed(
                     ctx,
                     "gas.molar_mass",
                     raw.molar_mass.unwrap_or(DEFAULT_MOLAR_MASS),
-                    0.0,
+                    1e-3,
                     1.0,
                     " kg/mol",
                 )?,
-                temperature: open_closed(
+                temperature: closed(
                     ctx,
                     "gas.temperature",
                     raw.temperature.unwrap_or(DEFAULT_TEMPERATURE),
-                    0.0,
+                    1.0,
                     1e4,
                     " K",
                 )?,
@@ -143,11 +144,13 @@ fn equation_of_state(ctx: &Ctx, raw: &RawGas) -> R<(GasModel, f64, f64)> {
         10.0,
         " Pa s",
     )?;
-    let pressure = open_closed(
+    // From 1 % of an atmosphere (a gas mean free path of about 7 µm, still
+    // a continuum around the particles) to 10⁴ atmospheres.
+    let pressure = closed(
         ctx,
         "gas.pressure",
         raw.pressure.unwrap_or(DEFAULT_PRESSURE),
-        0.0,
+        1e3,
         1e9,
         " Pa",
     )?;

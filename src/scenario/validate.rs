@@ -203,6 +203,9 @@ pub(crate) fn validate(ctx: &Ctx, raw: RawScenario) -> R<Scenario> {
         Some(g) => Some(super::gas::validate_gas(ctx, g, &domain, &boundaries)?),
         None => None,
     };
+    for (k, jet) in gas.iter().flat_map(|g| g.jets.iter()).enumerate() {
+        check_pulse_resolved(ctx, k, jet, time.dt_flow)?;
+    }
 
     let mut scenario = Scenario {
         name: ctx.file.to_string(),
@@ -226,6 +229,33 @@ pub(crate) fn validate(ctx: &Ctx, raw: RawScenario) -> R<Scenario> {
     check_soft_time_step(ctx, &scenario)?;
     scenario.warnings = limits::check(ctx, &scenario)?;
     Ok(scenario)
+}
+
+/// A pulsed jet's on and off times (s) each last at least the shortest gas
+/// sub-step a flow step of `dt_flow` (s) can take
+/// (`dt_flow / MAX_GAS_SUBSTEPS`): a shorter pulse falls between the steps
+/// that switch the jet, and the gas would see another jet than the one
+/// given.
+fn check_pulse_resolved(ctx: &Ctx, k: usize, jet: &crate::gas::Jet, dt_flow: f64) -> R<()> {
+    if jet.period == 0.0 {
+        return Ok(());
+    }
+    let shortest = dt_flow / crate::gas::solver::MAX_GAS_SUBSTEPS as f64;
+    let off = jet.period - jet.on_time;
+    let (key, what, t) = if jet.on_time < shortest {
+        ("on_time", "on", jet.on_time)
+    } else if off > 0.0 && off < shortest {
+        ("period", "off", off)
+    } else {
+        return Ok(());
+    };
+    Err(ctx.err(
+        format!("gas.jets[{k}].{key}"),
+        format!(
+            "the jet is {what} for {t:e} s a period, shorter than the shortest gas sub-step ({shortest:e} s = time.dt_flow / {}): the flow steps cannot resolve the pulse",
+            crate::gas::solver::MAX_GAS_SUBSTEPS
+        ),
+    ))
 }
 
 /// Most soft time steps per flow step: a stiffer spring or a smaller
