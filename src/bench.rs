@@ -827,7 +827,8 @@ mod tests {
                 equilibrate: 1.0,
                 measure: 1.0,
                 ..Default::default()
-            });
+            })
+            .expect("valid bench options");
             assert_eq!(r.neighbours, search);
             let sum: f64 = r.memory_bytes_per_particle.values().sum();
             // The total is floored to whole bytes.

@@ -8,12 +8,16 @@ use std::path::Path;
 
 use glam::DVec3;
 
+use crate::engine::ContactModel;
 use crate::scenario::{Scenario, Splitting, limits, resolved_toml};
 
 /// Measured CPU cost of the per-step particle work (event engine, kicks,
 /// re-prediction) per particle and flow step (s), on one core of this
 /// machine: the planar riser runs of docs/scaling.md, section 4.1.
 const SECONDS_PER_PARTICLE_STEP: f64 = 0.48e-6;
+/// CPU per particle and soft step (s): 4.3e6 particle-steps per CPU second
+/// in the soft jet bed (results/benchmarks.md, "Soft and hybrid contacts").
+const SECONDS_PER_SOFT_PARTICLE_STEP: f64 = 0.23e-6;
 /// Measured CPU cost of the gas phase including the coupling per gas cell
 /// and flow step (s), same runs.
 const SECONDS_PER_CELL_STEP: f64 = 1.07e-6;
@@ -120,7 +124,15 @@ fn run_time(s: &Scenario, steps: u64, initial: f64, fed: f64, cells: f64) -> Str
         return "run time: no estimate (a run without forces, or one from a checkpoint, costs what its collisions cost, which validation cannot predict)".into();
     }
     let steps = steps as f64;
-    let cost = |n: f64| steps * (n * SECONDS_PER_PARTICLE_STEP + cells * SECONDS_PER_CELL_STEP);
+    // The soft model moves every particle at every soft step; the hybrid
+    // only where collisions pile up, which validation cannot tell.
+    let soft_steps_per_flow_step = match (s.engine.model, s.soft_derived(std::iter::empty())) {
+        (ContactModel::Soft, Ok(d)) => (s.time.dt_flow / d.dt_max).ceil(),
+        _ => 0.0,
+    };
+    let per_particle =
+        SECONDS_PER_PARTICLE_STEP + soft_steps_per_flow_step * SECONDS_PER_SOFT_PARTICLE_STEP;
+    let cost = |n: f64| steps * (n * per_particle + cells * SECONDS_PER_CELL_STEP);
     let range = if fed > 0.0 {
         format!(
             "{} to {} (as many particles as at the start, or as the inlet can add)",
@@ -131,7 +143,14 @@ fn run_time(s: &Scenario, steps: u64, initial: f64, fed: f64, cells: f64) -> Str
         seconds(cost(initial))
     };
     format!(
-        "run time (rough estimate, per-step work only): {range} CPU on one core of this machine, from the unit costs measured on the planar riser runs (0.48 µs per particle and 1.07 µs per gas cell per flow step, docs/scaling.md); collisions come on top (0.5 to 1 µs each: 1 to 2 x 10^6 per CPU second, results/benchmarks.md), and dense beds collide far more often than the dilute riser"
+        "run time (rough estimate, per-step work only): {range} CPU on one core of this machine, from the unit costs measured on the planar riser runs (0.48 µs per particle and 1.07 µs per gas cell per flow step, docs/scaling.md){}; collisions come on top (0.5 to 1 µs each: 1 to 2 x 10^6 per CPU second, results/benchmarks.md), and dense beds collide far more often than the dilute riser",
+        if soft_steps_per_flow_step > 0.0 {
+            format!(
+                " and {soft_steps_per_flow_step} soft steps per flow step of 0.23 µs per particle (the jet bed's soft runs, results/benchmarks.md)"
+            )
+        } else {
+            String::new()
+        }
     )
 }
 

@@ -1194,3 +1194,30 @@ fn absurd_thread_counts_and_replay_times_fail_or_work_cleanly() {
     let o = edpm(&["check", scenario.to_str().unwrap()]);
     assert_clean_failure(&o, &["initial.checkpoint", "no-such.bin", "No such file"]);
 }
+
+/// `edpm check` counts the soft steps in its run-time estimate: the soft
+/// box moves every particle at each of its 124 soft steps per flow step
+/// (0.23 µs each against 0.48 µs a flow step of the hard engine), so its
+/// estimate is about 1 + 124 × 0.23 / 0.48 = 60 times the hard box's
+/// (before, both said 1.2 s; the soft box ran about 60 s).
+#[test]
+fn check_estimates_soft_runs_with_their_soft_steps() {
+    let estimate = |extra: &[&str]| {
+        let mut args = vec!["check", "scenarios/box-walls.toml"];
+        args.extend_from_slice(extra);
+        let o = edpm(&args);
+        assert_success(&o);
+        let err = stderr(&o);
+        let line = err
+            .lines()
+            .find(|l| l.starts_with("run time (rough estimate"))
+            .unwrap_or_else(|| panic!("{err}"))
+            .to_string();
+        let after = line.split("): ").nth(1).unwrap();
+        after.split(' ').next().unwrap().parse::<f64>().unwrap()
+    };
+    let hard = estimate(&[]);
+    let soft = estimate(&["--set", "engine.model=soft"]);
+    let ratio = soft / hard;
+    assert!((40.0..80.0).contains(&ratio), "{soft} / {hard} = {ratio}");
+}
