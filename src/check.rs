@@ -38,8 +38,8 @@ pub fn check_cli(
     }
     let s = Scenario::from_file_with_overrides(scenario_path, &overrides)?;
     // As `edpm run` would, before it builds anything: the checkpoint exists
-    // and is one (its header and checksums; the particles are read by the
-    // run).
+    // and is one (its header and the header's checksum; the particles and
+    // their checksums are read by the run).
     if let Some(cp) = &s.initial.checkpoint {
         crate::io::container::read_header(&crate::io::output::CHECKPOINT_KIND, cp)
             .map_err(|e| anyhow::anyhow!("{}: initial.checkpoint: {e:#}", s.name))?;

@@ -436,10 +436,13 @@ const WORKER_STACK_BYTES: usize = 8 << 20;
 /// through the kernel took about a tenth of the jet bed's time
 /// (results/benchmarks.md, "fourth session").
 fn on_worker_thread<T: Send>(work: impl FnOnce() -> T + Send) -> anyhow::Result<T> {
-    if let Ok(text) = std::env::var("RAYON_NUM_THREADS") {
+    // Parsed as rayon parses it (no trimming); empty counts as unset.
+    if let Ok(text) = std::env::var("RAYON_NUM_THREADS")
+        && !text.is_empty()
+    {
         let cpus = std::thread::available_parallelism().map_or(1, std::num::NonZeroUsize::get);
         let most = (MAX_THREADS_PER_CPU * cpus).max(MAX_THREADS_ANY_MACHINE);
-        match text.trim().parse::<usize>() {
+        match text.parse::<usize>() {
             Ok(n) if n <= most => {}
             _ => anyhow::bail!(
                 "RAYON_NUM_THREADS={text:?}: must be a thread count in 0..={most} on this machine (0 means one per CPU)"

@@ -172,6 +172,11 @@ fn column_value(
                 "{file} has no rows at t >= --average-after = {after} s"
             ));
         }
+        if std && values.len() < 2 {
+            return Err(format!(
+                "{file}:{name}:std needs at least two rows at t >= --average-after = {after} s, got one"
+            ));
+        }
         let n = values.len() as f64;
         let mean = values.iter().sum::<f64>() / n;
         let value = if std {

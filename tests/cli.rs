@@ -702,6 +702,16 @@ fn sweep_refuses_a_repeated_key_a_bad_t_end_and_columns_no_point_has() {
         "1e9",
     ]);
     assert_clean_failure(&o, &["has no rows at t >= --average-after"]);
+    // A standard deviation over the one last sample is no value either.
+    let o = sweep(&[
+        "--t-end",
+        "0.005",
+        "--columns",
+        "timeseries.csv:pair_collisions:std",
+        "--average-after",
+        "0.005",
+    ]);
+    assert_clean_failure(&o, &[":std needs at least two rows", "got one"]);
 }
 
 /// `edpm sweep` runs the Cartesian product of the listed values, one run
@@ -1152,6 +1162,21 @@ fn absurd_thread_counts_and_replay_times_fail_or_work_cleanly() {
         );
         assert_clean_failure(&o, &["RAYON_NUM_THREADS", "must be a thread count in 0..="]);
     }
+    // Set but empty: unset, as rayon takes it.
+    let empty = fresh_dir("rayon-empty");
+    let o = edpm_env(
+        &[
+            "run",
+            "scenarios/box-walls.toml",
+            "--t-end",
+            "0.005",
+            "--quiet",
+            "--out",
+            empty.to_str().unwrap(),
+        ],
+        &[("RAYON_NUM_THREADS", "")],
+    );
+    assert_success(&o);
     let dir = fresh_dir("replay-tiny-time");
     let log = dir.join("run.log");
     assert_success(&run_into(

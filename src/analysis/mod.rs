@@ -78,12 +78,12 @@
 //! | `pressure_drop.csv` (gas runs) | `time_s, pressure_bottom_Pa, pressure_top_Pa, pressure_drop_Pa, bed_weight_per_area_Pa` |
 //! | `bed_timeseries.csv` (runs with gravity) | per snapshot on the primary grid: `time_s, centroid_height_m, bed_height_m, height_95_m, voids, void_diameter_mean_m, void_fraction` ([`bed`]) |
 //! | `energy_budget.csv` | `time_s, potential_J, kinetic_J, convective_J, granular_J, rotational_J, rotational_granular_J, total_J` |
-//! | `ktgf_samples.csv` | per tally cell and interval: `time_s, cell, solids_fraction, packing_fraction, T_m2_s2, T_rot_m2_s2, density_kg_m3, particles, collisions, altered_collisions, g0, g0_ma, pk_Pa, pc_measured_Pa, pc_ktgf_Pa, pc_ktgf_ma_Pa, gamma_n_measured_W_m3, gamma_n_ktgf_W_m3, gamma_n_ktgf_ma_W_m3, gamma_t_measured_W_m3, gamma_t_theory_W_m3, undissipated_W_m3, gamma_n_ratio, pc_ratio, interval_s` (`g0`: Carnahan–Starling, or Henderson in planar runs; `_ma`: Ma–Ahmadi, 3D only, NaN in planar runs) |
+//! | `ktgf_samples.csv` | per tally cell and interval: `time_s, cell, solids_fraction, packing_fraction, T_m2_s2, T_rot_m2_s2, density_kg_m3, particles, collisions, altered_collisions, g0, g0_ma, pk_Pa, pc_measured_Pa, pc_ktgf_Pa, pc_ktgf_ma_Pa, gamma_n_measured_W_m3, gamma_n_ktgf_W_m3, gamma_n_ktgf_ma_W_m3, gamma_t_measured_W_m3, gamma_t_theory_W_m3, undissipated_W_m3, gamma_n_ratio, pc_ratio, interval_s` (`g0`: Carnahan–Starling, or Henderson in planar runs; `_ma`: Ma–Ahmadi, 3D only, empty in planar runs) |
 //! | `ktgf_binned.csv` | per packing-fraction bin of 0.02, samples without TC/guard alterations only: means and ratios of sums |
 //! | `segregation.csv` (bidisperse) | `time_s, n_small, n_large, h_small_m, h_large_m, x_large, S, S_max, segregation_index` |
 //!
 //! Values that are undefined (an empty cell's temperature) are written as
-//! `NaN` in CSV and `null` in JSON.
+//! empty CSV cells and `null` in JSON.
 
 pub mod bed;
 mod cli;

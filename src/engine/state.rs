@@ -325,10 +325,6 @@ impl<Q: EventQueue> Engine<Q> {
         Ok(self.skin_at_level(control.level))
     }
 
-    /// Replaces the state of an engine built from the same scenario with
-    /// `state` ([`Engine::export_state`]); the configuration, domain and
-    /// materials stay those of the build. `Err` with the reason when the
-    /// state cannot belong to this engine.
     /// The slot table's bookkeeping in `state`: the inactive slots are
     /// exactly the free ones, each listed once; active particles have
     /// distinct ids, all below the next id to hand out; particles waiting
@@ -381,6 +377,10 @@ impl<Q: EventQueue> Engine<Q> {
         Ok(())
     }
 
+    /// Replaces the state of an engine built from the same scenario with
+    /// `state` ([`Engine::export_state`]); the configuration, domain and
+    /// materials stay those of the build. `Err` with the reason when the
+    /// state cannot belong to this engine.
     pub fn import_state(&mut self, state: EngineState) -> Result<(), String> {
         if self.config.model != ContactModel::Hard {
             return Err(format!(

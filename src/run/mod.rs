@@ -389,17 +389,25 @@ struct WallClock {
 const MAX_SOFT_OVERLAP_REL: f64 = 0.5;
 
 /// Overlap (over the contact distance) above which a completed soft or
-/// hybrid run warns: ten times the default target overlap.
+/// hybrid run warns: ten times the default target overlap, or twice the
+/// scenario's own `engine.soft.max_overlap` where that is larger.
 const WARN_SOFT_OVERLAP_REL: f64 = 0.1;
 
-/// The warning of a run whose soft contacts overlapped by `overlap` (over
-/// the contact distance), if it is above [`WARN_SOFT_OVERLAP_REL`].
-fn soft_overlap_warning(overlap: f64) -> Option<String> {
-    (overlap > WARN_SOFT_OVERLAP_REL).then(|| {
+/// The warning of a run of `s` whose soft contacts overlapped by
+/// `overlap` (over the contact distance), if it is above the threshold of
+/// [`WARN_SOFT_OVERLAP_REL`].
+fn soft_overlap_warning(s: &Scenario, overlap: f64) -> Option<String> {
+    let threshold = match s.engine.soft.stiffness {
+        crate::scenario::Stiffness::Overlap { max_overlap, .. } => {
+            (2.0 * max_overlap).max(WARN_SOFT_OVERLAP_REL)
+        }
+        crate::scenario::Stiffness::Direct(_) => WARN_SOFT_OVERLAP_REL,
+    };
+    (overlap > threshold).then(|| {
         format!(
             "soft contacts overlapped by up to {:.1} % of their contact distance, more than {:.0} %: impacts were faster than engine.soft.impact_speed, or the spring (engine.soft) is too soft; results near contacts are doubtful",
             100.0 * overlap,
-            100.0 * WARN_SOFT_OVERLAP_REL
+            100.0 * threshold
         )
     })
 }
@@ -893,7 +901,7 @@ fn simulate<Q: EventQueue>(
             .iter()
             .cloned()
             .chain(run.feeder.as_ref().and_then(|f| f.shortfall(engine.time())))
-            .chain(soft_overlap_warning(engine.soft_stats.max_overlap_rel))
+            .chain(soft_overlap_warning(s, engine.soft_stats.max_overlap_rel))
             .collect(),
     };
     for w in summary.warnings.iter().skip(s.warnings.len()) {

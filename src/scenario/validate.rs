@@ -267,7 +267,7 @@ pub const MAX_SOFT_STEPS_PER_FLOW_STEP: f64 = 1e6;
 /// Soft and hybrid models: the stiffness and soft time step the
 /// populations imply exist, and the soft time step fits the flow step at
 /// most [`MAX_SOFT_STEPS_PER_FLOW_STEP`] times. (A checkpoint's particles
-/// are checked when the run loads them.)
+/// are checked when the run loads them: `run::build::soft_config`.)
 fn check_soft_time_step(ctx: &Ctx, s: &Scenario) -> R<()> {
     if s.engine.model == ContactModel::Hard || s.populations.is_empty() {
         return Ok(());

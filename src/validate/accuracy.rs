@@ -31,7 +31,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 
-use crate::io::output::{CsvColumns, write_atomic};
+use crate::io::output::{CsvColumns, csv_number, write_atomic};
 use crate::plot::{self, Scale, Series};
 use crate::run::run_scenario;
 use crate::scenario::Scenario;
@@ -572,9 +572,9 @@ fn write_outputs(study: &Study, rows: &[Row], out: &Path) -> anyhow::Result<()> 
             "{:?},{:?},{},{},{},{},{:?}",
             r.line,
             r.setting,
-            r.cpu_seconds,
-            r.measured,
-            r.error,
+            csv_number(r.cpu_seconds, false),
+            csv_number(r.measured, false),
+            csv_number(r.error, false),
             r.pareto,
             r.failure.as_deref().unwrap_or("")
         );
