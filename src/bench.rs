@@ -613,7 +613,7 @@ pub fn check_options(opts: &BenchOptions) -> Result<(), String> {
         ("--measure", opts.measure),
     ];
     for (name, c) in counts {
-        if !(c >= 0.0 && c <= MAX_COLLISIONS_PER_PARTICLE) {
+        if !(0.0..=MAX_COLLISIONS_PER_PARTICLE).contains(&c) {
             return Err(format!(
                 "{name} must be in [0, {MAX_COLLISIONS_PER_PARTICLE:e}] collisions per particle (got {c:?})"
             ));

@@ -404,6 +404,9 @@ fn damaged_or_mismatched_restart_files_are_refused_in_plain_words() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// One change made to a restart file's contents.
+type Forgery = Box<dyn Fn(&mut RestartFile)>;
+
 /// A restart file whose checksums are right but whose contents are not
 /// what edpm writes (a forged or buggy file) is refused naming the
 /// particle and the field, before anything runs: not a panic on a material
@@ -446,7 +449,7 @@ fn restart_files_with_impossible_contents_are_refused_naming_the_field() {
         e[prefix.len()..].to_string()
     };
     let id0 = good.particles[0].id;
-    let cases: Vec<(&str, Box<dyn Fn(&mut RestartFile)>, String)> = vec![
+    let cases: Vec<(&str, Forgery, String)> = vec![
         (
             "material",
             Box::new(|f| f.particles[0].material = 999),

@@ -428,7 +428,7 @@ impl<Q: EventQueue> Engine<Q> {
                 ));
             }
             // Exported at clock 0: a past collision or none (−∞).
-            if !(s.last_collision <= 0.0) {
+            if s.last_collision.is_nan() || s.last_collision > 0.0 {
                 return Err(format!(
                     "particle {}: its last collision at engine clock {} s is not in the past",
                     s.id, s.last_collision

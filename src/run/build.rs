@@ -125,7 +125,7 @@ pub fn soft_config(s: &Scenario, particles: &[NewParticle]) -> anyhow::Result<So
     // Validation checked the populations' particles; a checkpoint's may be
     // lighter, and so need a shorter step.
     let steps = s.time.dt_flow / derived.dt_max;
-    if !(steps <= crate::scenario::MAX_SOFT_STEPS_PER_FLOW_STEP) {
+    if steps.is_nan() || steps > crate::scenario::MAX_SOFT_STEPS_PER_FLOW_STEP {
         anyhow::bail!(
             "{}: engine.soft: with the checkpoint's particles the spring (k_n = {:e} N/m) gives a soft time step of {:e} s, {steps:.3e} soft steps per flow step of {} s; at most {:e} are allowed: use a softer spring or a shorter time.dt_flow",
             s.name,

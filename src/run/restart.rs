@@ -180,7 +180,8 @@ pub(super) fn read(
     // The flow steps done must fill the time from the start: a restart is
     // written only at a step's end.
     let steps_in_time = (file.time - start_time) / s.time.dt_flow;
-    if !((file.step as f64 - steps_in_time).abs() <= 1e-6 * steps_in_time.max(1.0)) {
+    let mismatch = (file.step as f64 - steps_in_time).abs();
+    if mismatch.is_nan() || mismatch > 1e-6 * steps_in_time.max(1.0) {
         anyhow::bail!(
             "{name}: the restart file counts {} flow steps done at t = {} s, but {steps_in_time:.6} steps of {} s fill the time from the start at {start_time} s: the file is damaged",
             file.step,

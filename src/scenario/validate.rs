@@ -283,7 +283,7 @@ fn check_soft_time_step(ctx: &Ctx, s: &Scenario) -> R<()> {
         )
     })?;
     let steps = s.time.dt_flow / d.dt_max;
-    if !(steps <= MAX_SOFT_STEPS_PER_FLOW_STEP) {
+    if steps.is_nan() || steps > MAX_SOFT_STEPS_PER_FLOW_STEP {
         return Err(ctx.err(
             "engine.soft",
             format!(
@@ -1019,7 +1019,7 @@ fn validate_engine(ctx: &Ctx, raw: Option<raw::RawEngine>) -> R<EngineSettings> 
         Some(raw::RawSkin::Other(v)) => return Err(allowed(v.to_string())),
         Some(raw::RawSkin::Fraction(skin)) => (skin, false),
     };
-    if !(skin >= MIN_SKIN && skin <= 2.0) {
+    if !(MIN_SKIN..=2.0).contains(&skin) {
         return Err(allowed(format!("{skin:?}")));
     }
     let model = model.unwrap_or_default();
