@@ -9,6 +9,15 @@ use crate::gas::flow::GasRun;
 use crate::queue::EventQueue;
 use crate::scenario::Scenario;
 
+/// Gas Courant numbers below which a failed gas step does not name the
+/// flow step among its likely causes: half the limit of a sub-step.
+const COURANT_NOT_A_CAUSE: f64 = 0.5;
+
+/// Inflow speeds, as a fraction of the isothermal sound speed, from which a
+/// failed gas step names the speed as a likely cause (Mach 0.3: where
+/// compressibility starts to matter).
+const TRANSONIC_FRACTION: f64 = 0.3;
+
 /// Likely causes of a failed gas step, with the scenario's values.
 pub(super) fn gas_failure_causes(g: &GasRun, dt: f64) -> String {
     let grid = &g.gas.grid;
@@ -32,15 +41,29 @@ pub(super) fn gas_failure_causes(g: &GasRun, dt: f64) -> String {
             )
         })
         .unwrap_or_default();
-    causes.push(format!(
-        "the flow step is too long for the gas speeds: with time.dt_flow = {dt:?} s the gas Courant number reached {reached:.3} before the failure{fastest}; the explicit gas convection needs it below about 1 in each gas sub-step (a flow step takes at most {} sub-steps): try time.dt_flow <= {:.3e} s{}",
-        crate::gas::solver::MAX_GAS_SUBSTEPS,
-        dt * 0.5 / reached.max(0.5),
-        inflows
-            .first()
-            .map(|_| ", or lower the inflow or jet speeds")
-            .unwrap_or("")
-    ));
+    // Below half the limit the flow step is not what failed (a NaN
+    // Courant number is no evidence either way: name it).
+    if !(reached < COURANT_NOT_A_CAUSE) {
+        causes.push(format!(
+            "the flow step is too long for the gas speeds: with time.dt_flow = {dt:?} s the gas Courant number reached {reached:.3} before the failure{fastest}; the explicit gas convection needs it below about 1 in each gas sub-step (a flow step takes at most {} sub-steps): try time.dt_flow <= {:.3e} s{}",
+            crate::gas::solver::MAX_GAS_SUBSTEPS,
+            dt * 0.5 / reached.max(0.5),
+            inflows
+                .first()
+                .map(|_| ", or lower the inflow or jet speeds")
+                .unwrap_or("")
+        ));
+    }
+    // The isothermal sound speed sqrt(dp/drho) = sqrt(R T / M).
+    let sound = 1.0 / g.gas.config.model.density_derivative().sqrt();
+    if let Some((field, v, _)) = inflows.iter().max_by(|a, b| a.1.total_cmp(&b.1))
+        && *v > TRANSONIC_FRACTION * sound
+    {
+        causes.push(format!(
+            "a transonic inflow: {field} = {v:?} m/s is {:.2} times the gas's isothermal sound speed, {sound:.1} m/s; the pressure-based gas solver with explicit convection is untested at such Mach numbers: lower the speed",
+            v / sound
+        ));
+    }
     let min_eps = g
         .gas
         .gas_fraction
