@@ -43,7 +43,7 @@ pub(super) fn gas_failure_causes(g: &GasRun, dt: f64) -> String {
         .unwrap_or_default();
     // Below half the limit the flow step is not what failed (a NaN
     // Courant number is no evidence either way: name it).
-    if !(reached < COURANT_NOT_A_CAUSE) {
+    if reached.is_nan() || reached >= COURANT_NOT_A_CAUSE {
         causes.push(format!(
             "the flow step is too long for the gas speeds: with time.dt_flow = {dt:?} s the gas Courant number reached {reached:.3} before the failure{fastest}; the explicit gas convection needs it below about 1 in each gas sub-step (a flow step takes at most {} sub-steps): try time.dt_flow <= {:.3e} s{}",
             crate::gas::solver::MAX_GAS_SUBSTEPS,
