@@ -27,6 +27,7 @@ use crate::engine::{
 use crate::materials::MaterialTable;
 use crate::particles::NewParticle;
 use crate::queue::{CalendarQueue, EventQueue, IndexedHeap, QueueKind, ReferenceQueue};
+use crate::scenario::MIN_SKIN;
 
 /// Benchmark settings.
 #[derive(Clone, Debug, PartialEq)]
@@ -577,20 +578,10 @@ pub const MIN_FLOW_STEP: f64 = 1e-2;
 /// The most collisions per particle to equilibrate or measure.
 pub const MAX_COLLISIONS_PER_PARTICLE: f64 = 1e6;
 
-/// The thinnest list skin (diameters): a thinner shell rebuilds its lists
-/// at nearly every event.
-pub const MIN_SKIN: f64 = 1e-2;
-
 /// Peak memory the bench may need per particle (bytes), with a margin: its
 /// peak resident set at N = 10⁶ was 231–291 bytes a particle
 /// (results/benchmarks.md, thirty-seventh session).
 pub const BYTES_PER_PARTICLE: f64 = 400.0;
-
-/// The side of the bench's periodic cube (diameters) for `n` (rounded to
-/// the FCC count) and `phi`: the engine needs more than 4 radii.
-pub fn box_side_for(n: usize, phi: f64) -> f64 {
-    box_side(fcc_count(n), phi)
-}
 
 /// The smallest `--n` whose cube at `phi` is longer than 4 radii.
 fn min_particles(phi: f64) -> usize {
@@ -660,7 +651,7 @@ pub fn check_options(opts: &BenchOptions) -> Result<(), String> {
             opts.n,
             fcc_count(opts.n),
             opts.phi,
-            box_side_for(opts.n, opts.phi)
+            box_side(fcc_count(opts.n), opts.phi)
         ));
     }
     Ok(())

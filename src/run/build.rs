@@ -119,22 +119,11 @@ pub fn soft_config(s: &Scenario, particles: &[NewParticle]) -> anyhow::Result<So
     let sizes = particles
         .iter()
         .map(|p| (table.sphere_mass(p.material, p.radius), 2.0 * p.radius));
-    let derived = s
-        .soft_derived(sizes)
-        .map_err(|e| anyhow::anyhow!("{}: engine.soft: {e}", s.name))?;
     // Validation checked the populations' particles; a checkpoint's may be
     // lighter, and so need a shorter step.
-    let steps = s.time.dt_flow / derived.dt_max;
-    if steps.is_nan() || steps > crate::scenario::MAX_SOFT_STEPS_PER_FLOW_STEP {
-        anyhow::bail!(
-            "{}: engine.soft: with the checkpoint's particles the spring (k_n = {:e} N/m) gives a soft time step of {:e} s, {steps:.3e} soft steps per flow step of {} s; at most {:e} are allowed: use a softer spring or a shorter time.dt_flow",
-            s.name,
-            derived.k_n,
-            derived.dt_max,
-            s.time.dt_flow,
-            crate::scenario::MAX_SOFT_STEPS_PER_FLOW_STEP
-        );
-    }
+    let derived = s
+        .checked_soft_derived(sizes)
+        .map_err(|m| anyhow::anyhow!("{}: engine.soft: {m}", s.name))?;
     Ok(SoftConfig {
         k_n: derived.k_n,
         contact_time: derived.contact_time,

@@ -31,7 +31,7 @@ pub use diameter::Diameter;
 pub(crate) use diameter::gaussian;
 pub use resolved::resolved_toml;
 pub use soft::SoftDerived;
-pub use validate::MAX_SOFT_STEPS_PER_FLOW_STEP;
+pub use validate::MIN_SKIN;
 pub(crate) use validate::scenario_error;
 
 /// Line and column (both 1-based, column in characters) in the scenario text.

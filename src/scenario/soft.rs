@@ -6,6 +6,12 @@
 use super::{Scenario, Stiffness};
 use crate::contact::soft::{self, SoftParamsError};
 
+/// Most soft time steps per flow step: a stiffer spring or a smaller
+/// target overlap than this allows would take hours for a few flow steps
+/// (0.2 µs a particle-step, results/benchmarks.md "Soft and hybrid
+/// contacts"); realistic DEM stiffnesses give 10²–10⁴.
+pub const MAX_SOFT_STEPS_PER_FLOW_STEP: f64 = 1e6;
+
 /// Soft-sphere values derived from a scenario and its particle sizes.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
 pub struct SoftDerived {
@@ -90,5 +96,33 @@ impl Scenario {
             dt_max: soft::time_step(contact_time, self.engine.soft.steps_per_contact),
             wall_overlap_rel,
         })
+    }
+}
+
+impl Scenario {
+    /// [`Scenario::soft_derived`], refused where the spring is unusable or
+    /// its time step would fit the flow step more than
+    /// [`MAX_SOFT_STEPS_PER_FLOW_STEP`] times; `Err` names the keys that
+    /// set the spring and what to change.
+    pub fn checked_soft_derived(
+        &self,
+        particles: impl Iterator<Item = (f64, f64)>,
+    ) -> Result<SoftDerived, String> {
+        let keys = match self.engine.soft.stiffness {
+            Stiffness::Direct(_) => "engine.soft.k_n",
+            Stiffness::Overlap { .. } => "engine.soft.max_overlap and impact_speed",
+        };
+        let d = self.soft_derived(particles).map_err(|e| {
+            format!("the spring from {keys} is not usable for these particles: {e}")
+        })?;
+        let dt_flow = self.time.dt_flow;
+        let steps = dt_flow / d.dt_max;
+        if steps.is_nan() || steps > MAX_SOFT_STEPS_PER_FLOW_STEP {
+            return Err(format!(
+                "the spring from {keys} (k_n = {:e} N/m) gives a soft time step of {:e} s, {steps:.3e} soft steps per flow step of {dt_flow} s; at most {MAX_SOFT_STEPS_PER_FLOW_STEP:e} are allowed: use a softer spring (smaller k_n, larger max_overlap or smaller impact_speed), a larger collisions e_n (strong damping shortens the contacts) or a shorter time.dt_flow",
+                d.k_n, d.dt_max
+            ));
+        }
+        Ok(d)
     }
 }

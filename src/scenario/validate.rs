@@ -258,41 +258,17 @@ fn check_pulse_resolved(ctx: &Ctx, k: usize, jet: &crate::gas::Jet, dt_flow: f64
     ))
 }
 
-/// Most soft time steps per flow step: a stiffer spring or a smaller
-/// target overlap than this allows would take hours for a few flow steps
-/// (0.2 µs a particle-step, results/benchmarks.md "Soft and hybrid
-/// contacts"); realistic DEM stiffnesses give 10²–10⁴.
-pub const MAX_SOFT_STEPS_PER_FLOW_STEP: f64 = 1e6;
-
-/// Soft and hybrid models: the stiffness and soft time step the
-/// populations imply exist, and the soft time step fits the flow step at
-/// most [`MAX_SOFT_STEPS_PER_FLOW_STEP`] times. (A checkpoint's particles
-/// are checked when the run loads them: `run::build::soft_config`.)
+/// Soft and hybrid models: the spring the populations imply is usable and
+/// its time step fits the flow step at most
+/// [`super::soft::MAX_SOFT_STEPS_PER_FLOW_STEP`] times. (A checkpoint's
+/// particles are checked when the run loads them: `run::build::soft_config`.)
 fn check_soft_time_step(ctx: &Ctx, s: &Scenario) -> R<()> {
     if s.engine.model == ContactModel::Hard || s.populations.is_empty() {
         return Ok(());
     }
-    let keys = match s.engine.soft.stiffness {
-        Stiffness::Direct(_) => "engine.soft.k_n",
-        Stiffness::Overlap { .. } => "engine.soft.max_overlap and impact_speed",
-    };
-    let d = s.soft_derived(std::iter::empty()).map_err(|e| {
-        ctx.err(
-            "engine.soft",
-            format!("the spring from {keys} is not usable for these particles: {e}"),
-        )
-    })?;
-    let steps = s.time.dt_flow / d.dt_max;
-    if steps.is_nan() || steps > MAX_SOFT_STEPS_PER_FLOW_STEP {
-        return Err(ctx.err(
-            "engine.soft",
-            format!(
-                "the spring from {keys} (k_n = {:e} N/m) gives a soft time step of {:e} s, {steps:.3e} soft steps per flow step of {} s; at most {MAX_SOFT_STEPS_PER_FLOW_STEP:e} are allowed: use a softer spring (smaller k_n, larger max_overlap or smaller impact_speed), a larger collisions e_n (strong damping shortens the contacts) or a shorter time.dt_flow",
-                d.k_n, d.dt_max, s.time.dt_flow
-            ),
-        ));
-    }
-    Ok(())
+    s.checked_soft_derived(std::iter::empty())
+        .map(|_| ())
+        .map_err(|m| ctx.err("engine.soft", m))
 }
 
 /// `[[materials]]`: names unique, densities in range; with the index of
