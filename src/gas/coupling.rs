@@ -627,7 +627,7 @@ impl Coupling {
         self.kicks.clear();
         // Over a step taken in sub-steps, the means over them (`GasPhase::step`).
         let velocity = gas.flow_step_velocity();
-        face_pressure_gradient(gas, gas.flow_step_pressure(), &mut self.gradient);
+        gas.face_pressure_gradient(gas.flow_step_pressure(), &mut self.gradient);
         let mut from_gas = DVec3::ZERO;
         let volume = gas.grid.cell_volume();
         for &a in gas.grid.velocity_axes() {
@@ -672,27 +672,6 @@ impl Coupling {
 #[inline]
 fn sphere_volume(r: f64) -> f64 {
     4.0 / 3.0 * std::f64::consts::PI * r * r * r
-}
-
-/// Gradient of the cell `pressure` (Pa) normal to each interior face of
-/// the gas grid (Pa/m), per axis (zero on boundary faces, which carry no
-/// particle weight).
-fn face_pressure_gradient(gas: &GasPhase, pressure: &[f64], out: &mut [Vec<f64>; 3]) {
-    let grid = &gas.grid;
-    for &a in grid.velocity_axes() {
-        out[a].clear();
-        out[a].resize(grid.faces(a), 0.0);
-        let h = grid.h[a];
-        for (f, g) in out[a].iter_mut().enumerate() {
-            let c = grid.face_coords(a, f);
-            if grid.is_boundary_face(a, c) {
-                continue;
-            }
-            let mut lower = c;
-            lower[a] = if c[a] == 0 { grid.n[a] - 1 } else { c[a] - 1 };
-            *g = (pressure[grid.cell_index(c)] - pressure[grid.cell_index(lower)]) / h;
-        }
-    }
 }
 
 #[cfg(test)]

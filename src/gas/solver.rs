@@ -591,6 +591,23 @@ impl GasPhase {
         (lower, upper)
     }
 
+    /// Gradient of the cell `pressure` (Pa) normal to each interior face
+    /// (Pa/m), per axis, into `out`: zero on boundary faces, which carry
+    /// no particle weight; across a periodic face the wrapped difference.
+    pub fn face_pressure_gradient(&self, pressure: &[f64], out: &mut [Vec<f64>; 3]) {
+        for &a in self.grid.velocity_axes() {
+            let h = self.grid.h[a];
+            out[a].clear();
+            out[a].extend(self.cells_of_face[a].iter().map(|link| {
+                if link.lower == NONE || link.upper == NONE {
+                    0.0
+                } else {
+                    (pressure[link.upper as usize] - pressure[link.lower as usize]) / h
+                }
+            }));
+        }
+    }
+
     /// Average of a cell field on face `f` normal to `a` (the adjacent
     /// cell's value on a boundary face).
     #[inline]
