@@ -22,6 +22,7 @@ pub mod restart;
 pub mod skipped;
 
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use anyhow::Context;
@@ -527,18 +528,26 @@ impl<Q: EventQueue> FlowLoop<'_, Q> {
         };
         let restarts = restarts.as_ref();
         let start = Instant::now();
+        let gas_done = AtomicBool::new(false);
         let ((flight, closing, closed), (gas, solved)) = rayon::join(
             || {
                 let (flight, ()) = timed(|| engine.advance(dt));
-                if engine.stall().is_some() {
-                    return (flight, 0.0, None);
-                }
-                let (closing, closed) = timed(|| {
-                    close_flight(s, engine, recorders, guard_watch, *forces, restarts, at)
-                });
-                (flight, closing, Some(closed))
+                let (closing, closed) = if engine.stall().is_some() {
+                    (0.0, None)
+                } else {
+                    let (closing, closed) = timed(|| {
+                        close_flight(s, engine, recorders, guard_watch, *forces, restarts, at)
+                    });
+                    (closing, Some(closed))
+                };
+                help_until(&gas_done, threads);
+                (flight, closing, closed)
             },
-            || timed(|| g.solve_overlapped(dt)),
+            || {
+                let solved = timed(|| g.solve_overlapped(dt));
+                gas_done.store(true, Ordering::Release);
+                solved
+            },
         );
         let both = start.elapsed().as_secs_f64();
         if threads > 1 {
@@ -686,6 +695,24 @@ impl<Q: EventQueue> FlowLoop<'_, Q> {
             w.end_step(&self.engine, gas, feeder, end.step, end.time, last)?;
         }
         Ok(())
+    }
+}
+
+/// Overlapped splitting, on the flight's thread once its flight is
+/// closed: takes the gas step's parallel tasks (the coupling's maps, the
+/// pressure solve's halves) as soon as they are queued, until `done`. A
+/// rayon worker left to wait would fall asleep, and waking it takes
+/// longer on a virtual machine than most of those tasks; spinning costs
+/// CPU time (counted in `cpu_seconds`), not wall time. With one thread
+/// there is no one to help.
+fn help_until(done: &AtomicBool, threads: usize) {
+    if threads < 2 {
+        return;
+    }
+    while !done.load(Ordering::Acquire) {
+        if rayon::yield_now() != Some(rayon::Yield::Executed) {
+            std::hint::spin_loop();
+        }
     }
 }
 
