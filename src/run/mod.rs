@@ -544,9 +544,10 @@ impl<Q: EventQueue> FlowLoop<'_, Q> {
                 (flight, closing, closed)
             },
             || {
-                let solved = timed(|| g.solve_overlapped(dt));
-                gas_done.store(true, Ordering::Release);
-                solved
+                // Set when the gas step ends, even by a panic (the flight's
+                // thread would otherwise spin on).
+                let _done = SetOnDrop(&gas_done);
+                timed(|| g.solve_overlapped(dt))
             },
         );
         let both = start.elapsed().as_secs_f64();
@@ -695,6 +696,15 @@ impl<Q: EventQueue> FlowLoop<'_, Q> {
             w.end_step(&self.engine, gas, feeder, end.step, end.time, last)?;
         }
         Ok(())
+    }
+}
+
+/// Sets its flag when dropped.
+struct SetOnDrop<'a>(&'a AtomicBool);
+
+impl Drop for SetOnDrop<'_> {
+    fn drop(&mut self) {
+        self.0.store(true, Ordering::Release);
     }
 }
 
