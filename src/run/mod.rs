@@ -183,11 +183,16 @@ pub struct Summary {
     pub counters: Counters,
     pub kinetic_energy_translational: f64,
     pub kinetic_energy_rotational: f64,
+    /// Process CPU time (s). With overlapped splitting on two or more
+    /// threads it includes the flight thread's spinning while it waits to
+    /// help the gas step ([`help_until`]): compare it between runs of one
+    /// splitting and thread count only.
     pub cpu_seconds: f64,
     pub wall_seconds: f64,
     /// Where the wall-clock time went (s), for speed work and thread
     /// scaling.
     pub wall_seconds_by_part: WallSecondsByPart,
+    /// Pair and wall collisions over `cpu_seconds`.
     pub events_per_cpu_second: f64,
     /// Particles that could not be inserted at the inlet for lack of room
     /// (waiting at the end of the run).
